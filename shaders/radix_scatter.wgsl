@@ -1,0 +1,72 @@
+// Radix sort pass, step 2: every key goes to
+//   scanned_counts[digit, block] + (keys of that digit in earlier threads of the block)
+//   + (keys of that digit earlier in this thread),
+// which keeps equal digits in input order (stable).
+#import dispatch
+#import radix
+
+@group(0) @binding(0) var<uniform> sp: SortParams;
+@group(0) @binding(1) var<storage, read> keys_in: array<u32>;
+@group(0) @binding(2) var<storage, read> vals_in: array<u32>;
+@group(0) @binding(3) var<storage, read> offsets: array<u32>;   // scanned counts
+@group(0) @binding(4) var<storage, read_write> keys_out: array<u32>;
+@group(0) @binding(5) var<storage, read_write> vals_out: array<u32>;
+
+var<workgroup> table: array<u32, 2048>;      // [digit * 128 + thread]
+var<workgroup> chunk: array<array<u32, 128>, 2>;
+
+@compute @workgroup_size(128)
+fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+        @builtin(local_invocation_index) li: u32) {
+    let block = linear_group(wid, nwg);
+    let base = block * SORT_BLOCK + li * SORT_ITEMS;
+    var local: array<u32, 16>;
+    for (var i = 0u; i < SORT_ITEMS; i++) {
+        if (base + i < sp.n) {
+            local[(keys_in[base + i] >> sp.shift) & 15u] += 1u;
+        }
+    }
+    for (var d = 0u; d < RADIX; d++) {
+        table[d * SORT_THREADS + li] = local[d];
+    }
+    workgroupBarrier();
+    // Exclusive scan of table (digit-major): thread li scans entries [16 li, 16 li + 16).
+    var run = 0u;
+    for (var i = 0u; i < 16u; i++) {
+        let x = table[li * 16u + i];
+        table[li * 16u + i] = run;
+        run += x;
+    }
+    chunk[0][li] = run;
+    var src = 0u;
+    workgroupBarrier();
+    for (var off = 1u; off < SORT_THREADS; off = off * 2u) {
+        var acc = chunk[src][li];
+        if (li >= off) {
+            acc += chunk[src][li - off];
+        }
+        chunk[1u - src][li] = acc;
+        src = 1u - src;
+        workgroupBarrier();
+    }
+    let chunk_excl = chunk[src][li] - run;
+    for (var i = 0u; i < 16u; i++) {
+        table[li * 16u + i] += chunk_excl;
+    }
+    workgroupBarrier();
+    if (block >= sp.num_blocks) {
+        return;
+    }
+    var seen: array<u32, 16>;
+    for (var i = 0u; i < SORT_ITEMS; i++) {
+        let idx = base + i;
+        if (idx < sp.n) {
+            let key = keys_in[idx];
+            let d = (key >> sp.shift) & 15u;
+            let dst = offsets[d * sp.num_blocks + block] + (table[d * SORT_THREADS + li] - table[d * SORT_THREADS]) + seen[d];
+            seen[d] += 1u;
+            keys_out[dst] = key;
+            vals_out[dst] = vals_in[idx];
+        }
+    }
+}

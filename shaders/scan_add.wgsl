@@ -1,0 +1,26 @@
+// Exclusive prefix sum, level 2: add each block's scanned offset to its 1024 values.
+#import dispatch
+
+struct ScanParams {
+    n: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+@group(0) @binding(0) var<uniform> sp: ScanParams;
+@group(0) @binding(1) var<storage, read_write> data: array<u32>;
+@group(0) @binding(2) var<storage, read> block_offsets: array<u32>;
+
+@compute @workgroup_size(256)
+fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+        @builtin(local_invocation_index) li: u32) {
+    let block = linear_group(wid, nwg);
+    let add = block_offsets[block];
+    let base = block * 1024u + li * 4u;
+    for (var i = 0u; i < 4u; i++) {
+        if (base + i < sp.n) {
+            data[base + i] += add;
+        }
+    }
+}

@@ -1,0 +1,60 @@
+"""Random test scenes: overlapping, tilted sheets of triangles that share vertices."""
+
+import numpy as np
+from scipy.spatial import Delaunay
+
+from tsplus_wgpu import Camera, TriangleModel
+
+
+def look_at_camera(width, height, fov_deg=60.0, eye=(0.0, 0.0, -4.0), target=(0.0, 0.0, 0.0)):
+    eye = np.asarray(eye, float)
+    fwd = np.asarray(target, float) - eye
+    fwd /= np.linalg.norm(fwd)
+    up = np.array([0.0, -1.0, 0.0])
+    right = np.cross(fwd, up)
+    if np.linalg.norm(right) < 1e-9:
+        right = np.array([1.0, 0.0, 0.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    R = np.stack([right, down, fwd])
+    m = np.eye(4)
+    m[:3, :3] = R
+    m[:3, 3] = -R @ eye
+    f = 0.5 * width / np.tan(np.radians(fov_deg) / 2)
+    return Camera(width, height, f, f, width / 2, height / 2, m)
+
+
+def random_scene(seed, width, height, sheets=3, points_per_sheet=8, sh_k=4, opacity=(0.3, 0.95),
+                 spread=1.3, degenerate_ok=False):
+    """A few tilted sheets (Delaunay of random points) at different depths, overlapping
+    on screen and extending partly outside the image."""
+    rng = np.random.default_rng(seed)
+    cam = look_at_camera(width, height)
+    positions, triangles = [], []
+    base = 0
+    for s in range(sheets):
+        pts2 = rng.uniform(-spread, spread, size=(points_per_sheet, 2))
+        tri = Delaunay(pts2).simplices
+        depth = rng.uniform(-1.0, 1.5)
+        tilt = rng.normal(scale=0.3, size=2)
+        z = depth + pts2 @ tilt + rng.normal(scale=0.05, size=points_per_sheet)
+        positions.append(np.column_stack([pts2, z]))
+        triangles.append(tri + base)
+        base += points_per_sheet
+    pos = np.concatenate(positions)
+    tri = np.concatenate(triangles)
+    n = pos.shape[0]
+    sh = rng.normal(scale=0.25, size=(n, sh_k, 3))
+    sh[:, 0] = rng.uniform(-1.5, 1.5, size=(n, 3))
+    op = rng.uniform(*opacity, size=n)
+    return TriangleModel(pos, tri, sh, op), cam
+
+
+def f32_exact(model, cam):
+    """The same scene with every parameter rounded to float32, so that a float32 kernel
+    and the float64 twin start from identical numbers."""
+    r = lambda a: np.asarray(a, np.float64).astype(np.float32).astype(np.float64)
+    m = TriangleModel(r(model.positions), model.triangles, r(model.sh), r(model.opacity))
+    c = Camera(cam.width, cam.height, float(np.float32(cam.fx)), float(np.float32(cam.fy)),
+               float(np.float32(cam.cx)), float(np.float32(cam.cy)), r(cam.world_to_camera))
+    return m, c

@@ -1,0 +1,257 @@
+"""The forward rasterizer on the device: SH -> colour, projection, depth sort, tile
+binning, sort by tile, tile ranges, blend. Results stay on the device; reading
+``image``, ``transmittance`` or ``max_weight`` copies them back on first access."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from . import reference
+from .gpu import GpuContext, Profiler
+from .stages import (BinCount, BinEmit, PrefixSum, ProjectTriangles, RadixSort, RasterizeForward,
+                     Scratch, ShToColor, TileRanges)
+from .types import Camera, TriangleModel
+
+TILE = 16
+TRI2D_FLOATS = 24
+
+
+class ForwardResult:
+    """Output of :meth:`Renderer.forward`. Device buffers are kept for the backward pass;
+    the numpy views below are read back lazily, once each."""
+
+    def __init__(self, renderer, camera, model, sigma, background, near, buffers, num_pairs, timings):
+        self.renderer = renderer
+        self.camera = camera
+        self.model = model
+        self.sigma = sigma
+        self.background = background
+        self.near = near
+        self.buffers = buffers
+        self.num_pairs = num_pairs
+        self.timings = timings     # {stage: ms} when profiled, else {}
+        self._cache = {}
+
+    def _read(self, name, dtype, count):
+        key = (name, np.dtype(dtype).str)
+        if key not in self._cache:
+            self._cache[key] = self.renderer.ctx.read(self.buffers[name], dtype, count)
+        return self._cache[key]
+
+    @property
+    def image(self):  # [H, W, 3] float32
+        h, w = self.camera.height, self.camera.width
+        return self._read("image", np.float32, h * w * 3).reshape(h, w, 3)
+
+    @property
+    def transmittance(self):  # [H, W] float32
+        h, w = self.camera.height, self.camera.width
+        return self._read("final_t", np.float32, h * w).reshape(h, w)
+
+    @property
+    def max_weight(self):  # [M] float32
+        return self._read("max_weight", np.uint32, self.model.num_triangles).view(np.float32)
+
+    @property
+    def n_contrib(self):  # [H, W] pairs up to the last contributing one
+        h, w = self.camera.height, self.camera.width
+        return self._read("n_contrib", np.uint32, 2 * h * w).reshape(h, w, 2)[..., 0]
+
+    @property
+    def n_evaluated(self):  # [H, W] pairs evaluated before stopping
+        h, w = self.camera.height, self.camera.width
+        return self._read("n_contrib", np.uint32, 2 * h * w).reshape(h, w, 2)[..., 1]
+
+    # Intermediate stages, for tests and tools.
+    def projected(self):
+        """Tri2D records as a structured array [M] and the pixel boxes [M, 4]."""
+        m = self.model.num_triangles
+        dt = self.renderer.tri2d_dtype
+        raw = self.renderer.ctx.read(self.buffers["tris"], np.uint8, m * dt.itemsize)
+        rects = self._read("pixel_rects", np.int32, 4 * m).reshape(m, 4)
+        return raw.view(dt), rects
+
+    def depth_order(self):  # [M] triangle index by rank
+        return self._read("tri_from_rank", np.uint32, self.model.num_triangles)
+
+    def pairs(self):
+        """(tile, triangle) pairs after the sort: ordered by tile, then depth."""
+        p = self.num_pairs
+        return self._read("pair_tiles", np.uint32, p), self._read("pair_tris", np.uint32, p)
+
+    def tile_ranges(self):
+        return self._read("ranges", np.uint32, 2 * self.renderer._tiles(self.camera)[2]).reshape(-1, 2)
+
+
+def _as_camera(camera):
+    if not isinstance(camera, Camera):
+        raise ValueError(f"camera: expected tsplus_wgpu.Camera, got {type(camera).__name__}")
+    return camera
+
+
+class Renderer:
+    """Forward rasterizer on a wgpu device.
+
+    Args:
+        adapter: None (best adapter; ``TSPLUS_ADAPTER`` if set), a name such as
+            ``"lavapipe"`` or ``"nvidia"``, a wgpu adapter, or an existing ``GpuContext``.
+    """
+
+    def __init__(self, adapter=None):
+        self.ctx = adapter if isinstance(adapter, GpuContext) else GpuContext(adapter)
+        c = self.ctx
+        self.scratch = Scratch(c)
+        self.sh_to_color = ShToColor(c)
+        self.project = ProjectTriangles(c)
+        self.bin_count = BinCount(c)
+        self.bin_emit = BinEmit(c)
+        self.scan = PrefixSum(c, self.scratch)
+        self.depth_sort = RadixSort(c, self.scratch, "depth_sort")
+        self.tile_sort = RadixSort(c, self.scratch, "tile_sort")
+        self.tile_ranges = TileRanges(c)
+        self.blend = RasterizeForward(c)
+        self.tri2d_dtype = self.project.src.structs["Tri2D"]
+        assert self.tri2d_dtype.itemsize == 4 * TRI2D_FLOATS
+
+    @property
+    def adapter_name(self):
+        return self.ctx.name
+
+    @staticmethod
+    def _tiles(camera):
+        tx = (camera.width + TILE - 1) // TILE
+        ty = (camera.height + TILE - 1) // TILE
+        return tx, ty, tx * ty
+
+    def _frame_params(self, model, camera, sigma, background, near, num_pairs):
+        tx, ty, _ = self._tiles(camera)
+        R, t = camera.R, camera.t
+        return self.project.uniform(
+            "FrameParams",
+            rot0=[*R[0], t[0]], rot1=[*R[1], t[1]], rot2=[*R[2], t[2]],
+            cam_center=[*camera.center, 0.0], background=[*background, 0.0],
+            fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, near=near, sigma=sigma,
+            width=camera.width, height=camera.height, tiles_x=tx, tiles_y=ty,
+            num_vertices=model.num_vertices, num_triangles=model.num_triangles, sh_k=model.sh_size,
+            num_pairs=num_pairs)
+
+    def upload_model(self, model: TriangleModel):
+        """Device buffers of a model (float32 / uint32)."""
+        c = self.ctx
+        return dict(
+            positions=c.upload(model.positions.astype(np.float32), "positions"),
+            triangles=c.upload(model.triangles.astype(np.uint32), "triangles"),
+            sh=c.upload(model.sh.astype(np.float32), "sh"),
+            opacity=c.upload(model.opacity.astype(np.float32), "opacity"),
+        )
+
+    def forward(self, model, camera, sigma, background=(0.0, 0.0, 0.0), near=0.01, profile=False):
+        """Render ``model`` seen by ``camera``.
+
+        Args:
+            model: :class:`TriangleModel` with at least one triangle.
+            camera: :class:`Camera`.
+            sigma: window sharpness (> 0); 1 is soft, 1e-4 is nearly a hard triangle.
+            background: RGB added where light passes through (weight T).
+            near: triangles with a vertex at camera z <= near are not drawn.
+            profile: time each stage (timestamp queries where supported, else host timing).
+
+        Returns:
+            :class:`ForwardResult` with ``image [H, W, 3]``, ``transmittance [H, W]``,
+            ``max_weight [M]`` (read back on first access).
+        """
+        if not isinstance(model, TriangleModel):
+            raise ValueError(f"model: expected tsplus_wgpu.TriangleModel, got {type(model).__name__}")
+        camera = _as_camera(camera)
+        sigma, bg, near = reference._check_args(sigma, background, near)
+        m, n = model.num_triangles, model.num_vertices
+        if m == 0:
+            raise ValueError("model: it has no triangles (M = 0); nothing to render")
+        c = self.ctx
+        h, w = camera.height, camera.width
+        tx, ty, ntiles = self._tiles(camera)
+        for name, nbytes in (("image", 12 * h * w), ("triangles", 12 * m), ("sh", 12 * n * model.sh_size),
+                             ("projected triangles", 4 * TRI2D_FLOATS * m)):
+            c.check_size(name, nbytes)
+        if max(tx, ty) > c.limits["max-compute-workgroups-per-dimension"]:
+            raise ValueError(f"camera: {w}x{h} needs more tiles per row/column than this device can dispatch")
+
+        host_timing = profile and not c.features.timestamps
+        prof = Profiler(c) if profile and c.features.timestamps else None
+        times = {}
+        t_start = time.perf_counter()
+
+        def submit(enc, label):
+            c.queue.submit([enc.finish()])
+            if host_timing:
+                c.wait()
+                now = time.perf_counter()
+                times[label] = times.get(label, 0.0) + (now - submit.t) * 1e3
+                submit.t = now
+        submit.t = t_start
+
+        dev = self.upload_model(model)
+        params = self._frame_params(model, camera, sigma, bg, near, 0)
+        b = dict(
+            colors=c.buffer(16 * n, "colors"),
+            tris=c.buffer(4 * TRI2D_FLOATS * m, "tris"),
+            pixel_rects=c.buffer(16 * m, "pixel_rects"),
+            depth_keys=c.buffer(4 * m, "depth_keys"),
+            tri_ids=c.buffer(4 * m, "tri_ids"),
+            counts=c.buffer(4 * m, "counts"),
+        )
+        if host_timing:
+            c.wait()
+            submit.t = time.perf_counter()
+        stage_encoders = host_timing  # one submission per stage only when host-timing
+
+        enc = c.device.create_command_encoder()
+        self.sh_to_color(enc, params, dev["positions"], dev["sh"], b["colors"], n, prof)
+        if stage_encoders:
+            submit(enc, "sh_to_color"); enc = c.device.create_command_encoder()
+        self.project(enc, params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"], b["tris"],
+                     b["pixel_rects"], b["depth_keys"], b["tri_ids"], m, prof)
+        if stage_encoders:
+            submit(enc, "project_triangles"); enc = c.device.create_command_encoder()
+        _, order = self.depth_sort.record(enc, b["depth_keys"], b["tri_ids"], m, 32, prof)
+        if stage_encoders:
+            submit(enc, "depth_sort"); enc = c.device.create_command_encoder()
+        b["tri_from_rank"] = order
+        self.bin_count(enc, params, b["tris"], b["pixel_rects"], order, b["counts"], m, prof)
+        total_buf = self.scan.record(enc, b["counts"], m, profiler=prof, label="bin_count")
+        submit(enc, "bin_count")
+        num_pairs = int(c.read(total_buf, np.uint32, 1)[0])   # sizes the pair buffers
+        c.check_size("tile-triangle pairs (image size x triangles)", 4 * num_pairs)
+
+        params = self._frame_params(model, camera, sigma, bg, near, num_pairs)
+        b["pair_tiles"] = c.buffer(4 * num_pairs, "pair_tiles")
+        b["pair_tris"] = c.buffer(4 * num_pairs, "pair_tris")
+        b["ranges"] = c.buffer(8 * ntiles, "ranges")
+        b["image"] = c.buffer(12 * h * w, "image")
+        b["final_t"] = c.buffer(4 * h * w, "final_t")
+        b["n_contrib"] = c.buffer(8 * h * w, "n_contrib")
+        b["max_weight"] = c.buffer(4 * m, "max_weight")
+        enc = c.device.create_command_encoder()
+        self.bin_emit(enc, params, b["tris"], b["pixel_rects"], order, b["counts"], b["pair_tiles"],
+                      b["pair_tris"], m, prof)
+        if stage_encoders:
+            submit(enc, "bin_emit"); enc = c.device.create_command_encoder()
+        tile_bits = max(1, int(ntiles - 1).bit_length())
+        keys, vals = self.tile_sort.record(enc, b["pair_tiles"], b["pair_tris"], num_pairs, tile_bits, prof)
+        if keys is not b["pair_tiles"]:
+            enc.copy_buffer_to_buffer(keys, 0, b["pair_tiles"], 0, 4 * max(num_pairs, 1))
+            enc.copy_buffer_to_buffer(vals, 0, b["pair_tris"], 0, 4 * max(num_pairs, 1))
+        if stage_encoders:
+            submit(enc, "tile_sort"); enc = c.device.create_command_encoder()
+        self.tile_ranges(enc, b["pair_tiles"], b["ranges"], num_pairs, prof)
+        if stage_encoders:
+            submit(enc, "tile_ranges"); enc = c.device.create_command_encoder()
+        self.blend(enc, params, b["ranges"], b["pair_tris"], b["tris"], b["image"], b["final_t"], b["n_contrib"],
+                   b["max_weight"], tx, ty, prof)
+        submit(enc, "rasterize_forward")
+        b["tri_from_rank"] = order
+        if prof is not None:
+            times = prof.resolve()
+        return ForwardResult(self, camera, model, sigma, tuple(bg), near, b, num_pairs, times)
