@@ -1,0 +1,16 @@
+"""Scene ingestion: COLMAP, transforms.json, LLFF and photos-only input, plus the built-in
+procedural scene.
+
+Main entry points:
+
+* :func:`load_scene` - detect the format of a folder and return a :class:`Scene`.
+* :func:`load_procedural` - the built-in, deterministic, textured indoor scene.
+* :class:`SceneError` - raised for a user's data mistake, as one line naming the file and the fix.
+"""
+
+from .errors import SceneError
+from .loader import FORMATS, detect_format, load_scene
+from .procedural import load_procedural
+from .scene import GTMesh, Scene
+
+__all__ = ["FORMATS", "GTMesh", "Scene", "SceneError", "detect_format", "load_procedural", "load_scene"]

@@ -1,0 +1,218 @@
+"""``load_scene``: detect a capture's format and load it into a :class:`Scene`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SceneError
+from .images import list_images
+from .scene import Scene, load_frames, make_split, select_frames
+
+FORMATS = ("colmap", "transforms", "nerf-synthetic", "llff", "photos", "procedural")
+
+
+def _parse_background(background, default):
+    if background is None:
+        return tuple(float(v) for v in default)
+    if isinstance(background, str):
+        named = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0), "grey": (0.5, 0.5, 0.5),
+                 "gray": (0.5, 0.5, 0.5)}
+        if background.lower() in named:
+            return named[background.lower()]
+        try:
+            parts = [float(x) for x in background.replace(",", " ").split()]
+        except ValueError:
+            raise SceneError(f"background {background!r}: expected 'white', 'black' or three numbers in [0, 1]") from None
+        background = parts
+    arr = np.atleast_1d(np.asarray(background, np.float64))
+    if arr.size == 1:
+        arr = np.repeat(arr, 3)
+    if arr.size != 3 or not np.all(np.isfinite(arr)) or arr.min() < 0 or arr.max() > 1:
+        raise SceneError(f"background {background!r}: expected three numbers in [0, 1]")
+    return tuple(float(v) for v in arr)
+
+
+def _image_dir(root: Path, images, downscale):
+    """The image folder and the downscale factor still to apply (``images_N`` folders absorb N)."""
+    if images is not None:
+        d = root / images
+        if not d.is_dir():
+            raise SceneError(f"{d}: image folder not found; pass an existing folder name with --images")
+        return d, float(downscale)
+    if float(downscale) > 1 and float(downscale).is_integer():
+        cand = root / f"images_{int(downscale)}"
+        if cand.is_dir() and list_images(cand):
+            return cand, 1.0
+    return root / "images", float(downscale)
+
+
+def detect_format(path) -> str:
+    """Name the format of a scene folder (see :data:`FORMATS`) without loading it."""
+    from .colmap import find_model_dir  # noqa: PLC0415
+    from .transforms import find_transforms  # noqa: PLC0415
+    if path is None or str(path).split(":")[0] == "procedural":
+        return "procedural"
+    root = Path(path)
+    if root.is_file():
+        root = root.parent
+    if find_model_dir(root) is not None:
+        return "colmap"
+    files, variant = find_transforms(root)
+    if files:
+        return variant
+    if (root / "poses_bounds.npy").is_file():
+        return "llff"
+    if list_images(root / "images") or list_images(root):
+        return "photos"
+    raise SceneError(f"{root}: no images and no camera model found (expected COLMAP sparse/, "
+                     "transforms.json, poses_bounds.npy or photos); point to a scene folder")
+
+
+def load_scene(path=None, images=None, downscale=1, background=None, split="auto", *,
+               frames=None, points="auto", on_bad_image="skip", cache_dir=None, progress=False,
+               max_points=None, seed=0) -> Scene:
+    """Load a scene, detecting its format.
+
+    Args:
+        path: scene folder (or its ``transforms.json`` / ``poses_bounds.npy``); ``None`` or
+            ``"procedural"`` (optionally ``"procedural:tiny|small|demo"``) for the built-in scene.
+        images: image folder name inside the scene (default ``images``, or ``images_N`` when
+            ``downscale`` is N and that folder exists).
+        downscale: shrink images (and intrinsics) by this factor (>= 1).
+        background: RGB in [0,1] (or ``"white"``/``"black"``) that alpha is composited on;
+            default white for NeRF-synthetic (the evaluation protocol), black otherwise.
+        split: ``"auto"``, ``"none"`` or ``"everyK"`` (see :func:`~tsplus_wgpu.data.scene.make_split`).
+        frames: optional subset (indices in the format's order, or image names) to load;
+            the split is computed on the full scene first, so held-out images stay held out.
+        points: ``"auto"`` (SfM points, else triangulation from known poses, else frusta),
+            ``"triangulate"``, ``"frusta"`` or ``"none"``.
+        on_bad_image: ``"skip"`` (warn and skip missing/unreadable images) or ``"error"``.
+        cache_dir: where SfM / triangulation results are cached (default beside the photos,
+            else ``$TSPLUS_CACHE`` or the user cache).
+        progress: show progress bars for long steps (SfM, triangulation, many images).
+        max_points: randomly subsample the initial points to at most this many.
+        seed: seed of the random choices (frusta points, subsampling).
+
+    Returns:
+        :class:`~tsplus_wgpu.data.scene.Scene`.
+
+    Raises:
+        SceneError: any problem with the user's data, as one line naming the file and the fix.
+    """
+    from .colmap import colmap_frames, find_model_dir  # noqa: PLC0415
+    from .llff import llff_frames  # noqa: PLC0415
+    from .sfm import cache_root, frusta_points, photo_names, run_photos_sfm, triangulate_known_poses  # noqa: PLC0415
+    from .transforms import find_transforms, transforms_frames  # noqa: PLC0415
+
+    if points not in ("auto", "triangulate", "frusta", "none"):
+        raise SceneError(f"points {points!r}: expected 'auto', 'triangulate', 'frusta' or 'none'")
+    if on_bad_image not in ("skip", "error"):
+        raise SceneError(f"on_bad_image {on_bad_image!r}: expected 'skip' or 'error'")
+    try:
+        downscale = float(downscale)
+    except (TypeError, ValueError):
+        raise SceneError(f"downscale {downscale!r}: expected a number >= 1") from None
+    if not np.isfinite(downscale) or downscale < 1:
+        raise SceneError(f"downscale {downscale!r}: expected a number >= 1")
+
+    if path is None or str(path).split(":")[0] == "procedural":
+        from .procedural import load_procedural  # noqa: PLC0415
+        size = str(path).split(":", 1)[1] if path is not None and ":" in str(path) else "small"
+        sc = load_procedural(size=size, seed=seed, split=split)
+        if downscale != 1 or background is not None:
+            sc.warnings.append("downscale/background are ignored for the procedural scene; pick a size instead")
+        return sc
+
+    root = Path(path).expanduser()
+    if not root.exists():
+        raise SceneError(f"{root}: no such file or folder; check the path")
+    if root.is_file():
+        if root.name.endswith(".json") or root.name == "poses_bounds.npy":
+            root = root.parent
+        else:
+            raise SceneError(f"{root}: not a scene folder; pass the folder holding the images and cameras")
+    if not root.is_dir():
+        raise SceneError(f"{root}: not a folder; pass the scene folder")
+    warnings: list = []
+    pts = cols = bounds = None
+    models: dict = {}
+    model_dir = find_model_dir(root)
+    t_files, t_variant = find_transforms(root)
+    photo_dir = None
+    if model_dir is not None:
+        fmt = "colmap"
+        image_dir, rest = _image_dir(root, images, downscale)
+        if not image_dir.is_dir():
+            raise SceneError(f"{image_dir}: image folder of the COLMAP model not found; put the images there "
+                             "or pass --images FOLDER")
+        frame_specs, pts, cols, models, _ = colmap_frames(root, model_dir, image_dir, warnings)
+    elif t_files:
+        fmt = t_variant
+        rest = downscale
+        frame_specs, models = transforms_frames(root, t_files, t_variant, warnings)
+    elif (root / "poses_bounds.npy").is_file():
+        fmt = "llff"
+        image_dir, rest = _image_dir(root, images, downscale)
+        frame_specs, bounds = llff_frames(root, image_dir, warnings)
+        models = {"PINHOLE": len(frame_specs)}
+    else:
+        photo_dir = root / images if images is not None else (root / "images" if list_images(root / "images") else root)
+        names = photo_names(photo_dir) if photo_dir.is_dir() else []
+        if not names:
+            if not any(root.iterdir()):
+                raise SceneError(f"{root}: the folder is empty; put photos (or a COLMAP / transforms.json / "
+                                 "LLFF scene) in it")
+            raise SceneError(f"{root}: no images and no camera model found (expected COLMAP sparse/, "
+                             "transforms.json, poses_bounds.npy or photos); point to a scene folder")
+        fmt = "photos"
+        model_dir = run_photos_sfm(photo_dir, names, cache=cache_dir, progress=progress, warnings=warnings)
+        image_dir, rest = photo_dir, downscale
+        frame_specs, pts, cols, models, _ = colmap_frames(root, model_dir, image_dir, warnings)
+
+    bg = _parse_background(background, (1.0, 1.0, 1.0) if fmt == "nerf-synthetic" else (0.0, 0.0, 0.0))
+    is_test = [f.is_test for f in frame_specs]
+    train_all, test_all, rule = make_split(len(frame_specs), split, is_test if fmt == "nerf-synthetic" else None)
+    sel = select_frames(frame_specs, frames)
+    chosen = [frame_specs[i] for i in sel]
+    cameras, imgs, kept, skipped = load_frames(chosen, rest, bg, on_bad_image, warnings, progress=progress)
+    orig = [sel[k] for k in kept]
+    train_set, test_set = set(train_all), set(test_all)
+    train_idx = [j for j, o in enumerate(orig) if o in train_set]
+    test_idx = [j for j, o in enumerate(orig) if o in test_set]
+    names = [chosen[k].name for k in kept]
+
+    source = "sfm" if pts is not None else "none"
+    if points == "none":
+        pts = cols = None
+        source = "none"
+    elif pts is None or points in ("triangulate", "frusta"):
+        use = train_idx if len(train_idx) >= 2 else list(range(len(cameras)))
+        tri_cams = [cameras[i] for i in use]
+        tri_imgs = [imgs[i] for i in use]
+        done = False
+        if points != "frusta" and len(use) >= 2:
+            croot, note = cache_root(root, cache_dir)
+            if note:
+                warnings.append(note)
+            try:
+                pts, cols, info = triangulate_known_poses(tri_cams, tri_imgs, [names[i] for i in use], croot,
+                                                          progress=progress)
+                source = "triangulated"
+                done = True
+                warnings.append(f"initial points triangulated with pycolmap from {len(use)} posed images "
+                                f"(mean reprojection error {info['mean_reprojection_error']:.2f} px)")
+            except RuntimeError as exc:
+                warnings.append(f"{exc}: initial points made from the camera frusta instead")
+        if not done:
+            pts, cols = frusta_points(cameras, imgs, bounds=bounds, seed=seed)
+            source = "frusta"
+            if points == "frusta":
+                warnings.append("initial points made from the camera frusta (as asked)")
+    if pts is not None and max_points is not None and len(pts) > int(max_points):
+        keep = np.sort(np.random.default_rng(seed).choice(len(pts), int(max_points), replace=False))
+        pts, cols = pts[keep], cols[keep]
+    return Scene(format=fmt, cameras=cameras, images=imgs, image_names=names, points=pts, point_colors=cols,
+                 points_source=source, train_indices=train_idx, test_indices=test_idx, warnings=warnings,
+                 root=str(root), background=bg, skipped=skipped, camera_models=models, split_rule=rule)

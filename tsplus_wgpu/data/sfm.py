@@ -1,0 +1,369 @@
+"""Structure from motion with pycolmap, and initial points for scenes that have poses only.
+
+* :func:`run_photos_sfm`: SIFT features, matching and incremental mapping for a folder
+  of photos, with a progress display; the model is cached beside the photos (or in the
+  user cache when that folder is read-only) and reused when the photos have not changed.
+* :func:`triangulate_known_poses`: features and matches as above, then pycolmap's
+  point triangulator with the given cameras held fixed.
+* :func:`frusta_points`: the fallback: random points inside the volume most cameras see,
+  coloured from the images.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..types import Camera
+from .errors import SceneError
+from .images import IMAGE_EXTENSIONS, write_image
+
+CACHE_DIR_NAME = ".tsplus_cache"
+
+
+def _pycolmap():
+    try:
+        import pycolmap  # noqa: PLC0415
+    except ImportError:  # pragma: no cover
+        raise SceneError("pycolmap is missing: install it with `pip install pycolmap`") from None
+    return pycolmap
+
+
+class _Progress:
+    """Stage progress on stderr (tqdm when available); silent when disabled."""
+
+    def __init__(self, enabled: bool, total: int, desc: str):
+        self.enabled = enabled
+        self.bar = None
+        self.t0 = time.time()
+        if enabled:
+            try:
+                from tqdm import tqdm  # noqa: PLC0415
+                self.bar = tqdm(total=total, desc=desc, unit="step", file=sys.stderr, leave=True)
+            except ImportError:  # pragma: no cover
+                print(f"{desc} ...", file=sys.stderr)
+
+    def stage(self, text: str, advance: int = 1):
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.set_postfix_str(text)
+            self.bar.update(advance)
+        else:  # pragma: no cover
+            print(f"  {text} ({time.time() - self.t0:.0f}s)", file=sys.stderr)
+
+    def note(self, text: str):
+        if self.enabled and self.bar is not None:
+            self.bar.set_postfix_str(text)
+            self.bar.refresh()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+def cache_root(scene_dir: Path, override=None) -> tuple[Path, str | None]:
+    """Folder for cached SfM results: ``override``, else ``$TSPLUS_CACHE``, else beside the photos
+    (``<scene>/.tsplus_cache``), else the user cache when the scene folder is read-only.
+
+    Returns ``(folder, note)`` where note explains a fallback.
+    """
+    if override is not None:
+        return Path(override), None
+    env = os.environ.get("TSPLUS_CACHE")
+    if env:
+        return Path(env), None
+    beside = Path(scene_dir) / CACHE_DIR_NAME
+    try:
+        beside.mkdir(exist_ok=True)
+        probe = beside / ".write_test"
+        probe.write_text("")
+        probe.unlink()
+        return beside, None
+    except OSError:
+        key = hashlib.sha1(str(Path(scene_dir).resolve()).encode()).hexdigest()[:12]
+        base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "tsplus_wgpu" / key
+        return base, f"{scene_dir} is read-only: SfM cache kept in {base}"
+
+
+def _fingerprint(paths) -> str:
+    h = hashlib.sha1()
+    for p in paths:
+        st = Path(p).stat()
+        h.update(f"{Path(p).name}|{st.st_size}|{int(st.st_mtime)}\n".encode())
+    return h.hexdigest()
+
+
+def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, camera_model: str,
+                       pairs=None, max_image_size: int = 1600, progress: _Progress | None = None):
+    ext = pycolmap.FeatureExtractionOptions()
+    ext.max_image_size = int(max_image_size)
+    ext.num_threads = -1
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = camera_model
+    pycolmap.extract_features(db, img_dir, image_names=list(names), camera_mode=camera_mode,
+                              reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
+    if progress:
+        progress.stage("matching")
+    mopt = pycolmap.FeatureMatchingOptions()
+    mopt.num_threads = -1
+    if pairs is None:
+        pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)
+    else:
+        pair_file = Path(db).with_suffix(".pairs.txt")
+        pair_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
+        popt = pycolmap.ImportedPairingOptions()
+        popt.match_list_path = pair_file
+        pycolmap.match_image_pairs(db, matching_options=mopt, pairing_options=popt, device=pycolmap.Device.cpu)
+
+
+def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = True, warnings=None):
+    """Incremental SfM on the photos ``names`` inside ``photo_dir``.
+
+    Returns:
+        the folder of the resulting COLMAP model (``.../sparse/0``), cached and reused while the
+        photos (names, sizes, modification times) are unchanged.
+
+    Raises:
+        SceneError: too few photos, or SfM registers too few of them.
+    """
+    pycolmap = _pycolmap()
+    warnings = warnings if warnings is not None else []
+    photo_dir = Path(photo_dir)
+    if len(names) < 3:
+        raise SceneError(f"{photo_dir}: {len(names)} photo(s) found, SfM needs at least 3 overlapping photos; add more")
+    root, note = cache_root(photo_dir.parent if photo_dir.name == "images" else photo_dir, cache)
+    if note:
+        warnings.append(note)
+    fp = _fingerprint([photo_dir / n for n in names])
+    work = root / f"sfm_{fp[:16]}"
+    model_dir = work / "sparse" / "0"
+    if (model_dir / "cameras.bin").is_file() and (work / "done.json").is_file():
+        warnings.append(f"reused cached SfM model {model_dir}")
+        return model_dir
+    if work.exists():
+        shutil.rmtree(work, ignore_errors=True)
+    work.mkdir(parents=True, exist_ok=True)
+    db = work / "database.db"
+    prog = _Progress(progress, 3 + len(names), f"SfM on {len(names)} photos")
+    try:
+        prog.stage("extracting SIFT features", 0)
+        _extract_and_match(pycolmap, db, photo_dir, names, pycolmap.CameraMode.AUTO, "SIMPLE_RADIAL",
+                           progress=prog)
+        prog.stage("incremental mapping")
+        opts = pycolmap.IncrementalPipelineOptions()
+        opts.num_threads = -1
+        opts.random_seed = 0
+        opts.multiple_models = False
+        count = {"n": 0}
+
+        def on_image():
+            count["n"] += 1
+            prog.stage(f"registered {count['n'] + 1} images")
+
+        out = work / "sparse_all"
+        out.mkdir(exist_ok=True)
+        recs = pycolmap.incremental_mapping(db, photo_dir, out, options=opts, next_image_callback=on_image)
+    except SceneError:
+        raise
+    except Exception as exc:
+        raise SceneError(f"{photo_dir}: SfM failed ({str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}); "
+                         "take more overlapping, sharp photos") from None
+    finally:
+        prog.close()
+    best = max(recs.values(), key=lambda r: r.num_reg_images()) if recs else None
+    nreg = best.num_reg_images() if best is not None else 0
+    need = max(3, (len(names) + 1) // 2)
+    if nreg < need:
+        raise SceneError(f"{photo_dir}: SfM registered only {nreg} of {len(names)} photos (need {need}); "
+                         "take more overlapping, sharp photos with texture, or remove the unrelated ones")
+    if nreg < len(names):
+        warnings.append(f"SfM registered {nreg} of {len(names)} photos; the others are skipped")
+    model_dir.mkdir(parents=True, exist_ok=True)
+    best.write(str(model_dir))
+    (work / "done.json").write_text(json.dumps({"images": list(names), "registered": nreg}))
+    return model_dir
+
+
+def _neighbour_pairs(cameras: list, names: list, k: int = 12):
+    """Image pairs for matching with known poses: each image with its k nearest cameras
+    (distance plus a penalty for different viewing directions)."""
+    C = np.stack([c.center for c in cameras])
+    D = np.stack([c.R[2] for c in cameras])  # viewing directions
+    dist = np.linalg.norm(C[:, None] - C[None], axis=2)
+    scale = np.median(dist[dist > 0]) if np.any(dist > 0) else 1.0
+    cosang = np.clip(D @ D.T, -1, 1)
+    score = dist / scale + 2.0 * (1 - cosang)
+    np.fill_diagonal(score, np.inf)
+    pairs = set()
+    for i in range(len(cameras)):
+        for j in np.argsort(score[i])[:k]:
+            if np.isfinite(score[i, j]) and cosang[i, j] > 0.0:
+                pairs.add((min(i, int(j)), max(i, int(j))))
+    return [(names[a], names[b]) for a, b in sorted(pairs)]
+
+
+def triangulate_known_poses(cameras: list, images: list, names: list, cache_dir: Path,
+                            progress: bool = True, max_image_size: int = 1600, exhaustive_max: int = 30):
+    """Triangulate points from the loaded (pinhole, undistorted) images and fixed known poses.
+
+    Args:
+        cameras, images, names: the scene's loaded cameras and float images.
+        cache_dir: work folder; the result ``points.npz`` is cached there keyed on cameras and images.
+
+    Returns:
+        ``(points [P,3], colors [P,3], info dict)``.
+
+    Raises:
+        RuntimeError: pycolmap failed or produced too few points (the caller falls back to frusta).
+    """
+    pycolmap = _pycolmap()
+    h = hashlib.sha1()
+    for cam, img, n in zip(cameras, images, names):
+        h.update(n.encode())
+        h.update(np.round(np.array([cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy]), 4).tobytes())
+        h.update(np.round(cam.world_to_camera, 6).tobytes())
+        h.update(np.ascontiguousarray(img[::17, ::13]).tobytes())
+    work = Path(cache_dir) / f"tri_{h.hexdigest()[:16]}"
+    result = work / "points.npz"
+    if result.is_file():
+        z = np.load(result)
+        return z["xyz"], z["rgb"], {"cached": str(result), "mean_reprojection_error": float(z["err"])}
+    if work.exists():
+        shutil.rmtree(work, ignore_errors=True)
+    img_dir = work / "images"
+    img_dir.mkdir(parents=True, exist_ok=True)
+    safe = [f"{i:05d}.png" for i in range(len(names))]
+    for img, s in zip(images, safe):
+        write_image(img_dir / s, img)
+    db = work / "database.db"
+    prog = _Progress(progress, 3, f"triangulating points from {len(names)} posed images")
+    try:
+        pairs = None if len(names) <= exhaustive_max else _neighbour_pairs(cameras, safe)
+        prog.stage("extracting SIFT features", 0)
+        _extract_and_match(pycolmap, db, img_dir, safe, pycolmap.CameraMode.PER_IMAGE, "PINHOLE",
+                           pairs=pairs, max_image_size=max_image_size, progress=prog)
+        prog.stage("triangulating")
+        rec = pycolmap.Reconstruction()
+        with pycolmap.Database.open(db) as database:
+            db_images = {im.name: im for im in database.read_all_images()}
+            for i, s in enumerate(safe):
+                if s not in db_images:
+                    continue
+                dbim = db_images[s]
+                cam = cameras[i]
+                dbcam = database.read_camera(dbim.camera_id)
+                # the database camera may be at a reduced size (max_image_size) -> use the file size
+                pc = pycolmap.Camera.create_from_model_name(dbim.camera_id, "PINHOLE", cam.fx, cam.width, cam.height)
+                pc.params = [cam.fx, cam.fy, cam.cx, cam.cy]
+                if (dbcam.width, dbcam.height) != (cam.width, cam.height):
+                    pc.rescale(int(dbcam.width), int(dbcam.height))
+                database.update_camera(pc)
+                rec.add_camera_with_trivial_rig(pc)
+                im = pycolmap.Image(name=s, camera_id=dbim.camera_id, image_id=dbim.image_id)
+                im.points2D = pycolmap.Point2DList(
+                    [pycolmap.Point2D(xy) for xy in database.read_keypoints(dbim.image_id)[:, :2]])
+                rec.add_image_with_trivial_frame(im, pycolmap.Rigid3d(cam.world_to_camera[:3, :4]))
+        out = work / "sparse"
+        out.mkdir(exist_ok=True)
+        opts = pycolmap.IncrementalPipelineOptions()
+        opts.num_threads = -1
+        rec = pycolmap.triangulate_points(rec, db, img_dir, out, options=opts)
+        prog.stage("done")
+    except Exception as exc:
+        raise RuntimeError(f"pycolmap triangulation failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}") from None
+    finally:
+        prog.close()
+    pts = list(rec.points3D.values())
+    if len(pts) < 50:
+        raise RuntimeError(f"pycolmap triangulated only {len(pts)} points")
+    xyz = np.array([p.xyz for p in pts], np.float64)
+    rgb = np.array([p.color for p in pts], np.float64) / 255.0
+    err = float(rec.compute_mean_reprojection_error())
+    np.savez(result, xyz=xyz, rgb=rgb, err=err)
+    shutil.rmtree(img_dir, ignore_errors=True)
+    return xyz, rgb, {"mean_reprojection_error": err, "reconstruction": rec, "work": str(work)}
+
+
+def frusta_points(cameras: list, images: list, n: int = 20000, bounds=None, seed: int = 0):
+    """Points in the volume that the cameras look at, coloured from the images.
+
+    Depth range: from ``bounds`` ([N, 2] near/far per camera, LLFF) when given, else around the
+    point nearest to all optical axes.  A candidate (random pixel of a random view at a random
+    depth) is kept when at least half of the cameras (and at least 2) see it.
+
+    Returns:
+        ``(points [P,3], colors [P,3])``.
+    """
+    rng = np.random.default_rng(seed)
+    C = np.stack([c.center for c in cameras])                       # [N, 3]
+    D = np.stack([c.R[2] for c in cameras])                         # [N, 3] optical axes
+    if bounds is not None:
+        near = np.full(len(cameras), float(np.percentile(bounds[:, 0], 10)))
+        far = np.full(len(cameras), float(np.percentile(bounds[:, 1], 90)))
+    else:
+        A = np.zeros((3, 3))
+        b = np.zeros(3)
+        for c, d in zip(C, D):
+            P = np.eye(3) - np.outer(d, d)
+            A += P
+            b += P @ c
+        try:
+            focus = np.linalg.solve(A + 1e-9 * np.eye(3), b)
+        except np.linalg.LinAlgError:
+            focus = C.mean(0) + D.mean(0)
+        dist = np.einsum("nj,nj->n", focus - C, D)
+        dist = np.where(dist > 0, dist, np.median(np.linalg.norm(focus - C, axis=1)))
+        near, far = 0.3 * dist, 1.7 * dist
+    need = max(2, int(np.ceil(0.5 * len(cameras)))) if len(cameras) > 1 else 1
+    pts, cols = [], []
+    total = 0
+    for _ in range(20):
+        m = 4 * n
+        vi = rng.integers(0, len(cameras), m)
+        u = rng.random(m)
+        v = rng.random(m)
+        s = rng.random(m)
+        out = np.empty((m, 3))
+        col = np.empty((m, 3))
+        for k in np.unique(vi):
+            sel = vi == k
+            cam = cameras[k]
+            px = u[sel] * cam.width
+            py = v[sel] * cam.height
+            z = near[k] + s[sel] * (far[k] - near[k])
+            xc = np.stack([(px - cam.cx) / cam.fx * z, (py - cam.cy) / cam.fy * z, z], 1)
+            out[sel] = (xc - cam.t) @ cam.R
+            img = images[k]
+            col[sel] = img[np.minimum((py).astype(int), img.shape[0] - 1), np.minimum(px.astype(int), img.shape[1] - 1)]
+        seen = np.zeros(m, int)
+        for cam in cameras:
+            xc = out @ cam.R.T + cam.t
+            z = xc[:, 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                uu = cam.fx * xc[:, 0] / z + cam.cx
+                vv = cam.fy * xc[:, 1] / z + cam.cy
+            seen += (z > 1e-6) & (uu >= 0) & (uu < cam.width) & (vv >= 0) & (vv < cam.height)
+        keep = seen >= need
+        pts.append(out[keep])
+        cols.append(col[keep])
+        total += int(keep.sum())
+        if total >= n:
+            break
+    P = np.concatenate(pts)[:n]
+    Cc = np.concatenate(cols)[:n]
+    return P, np.clip(Cc, 0, 1).astype(np.float64)
+
+
+def photo_names(folder: Path) -> list:
+    """Image files in a photos-only folder (sorted)."""
+    return sorted(p.name for p in Path(folder).iterdir()
+                  if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith("."))
