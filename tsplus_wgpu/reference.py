@@ -247,10 +247,11 @@ def blend(proj: Projection, order, width, height, sigma, background=(0.0, 0.0, 0
     count = np.zeros((h, w), np.int64)
     max_weight = np.zeros(m)
     # First-order float32 error model: a projected vertex is known to about one ulp of
-    # its pixel coordinate, which moves e_k by that much times |g_k| (1 / inradius).
+    # its pixel coordinate (a few roundings: 2^-22 relative), which moves e_k by that much
+    # times |g_k| (1 / inradius).
     pts = proj.verts2d if proj.verts2d is not None else proj.s[:, None, :]
     scale = np.abs(np.nan_to_num(pts, posinf=0.0, neginf=0.0)).reshape(m, -1).max(axis=1)
-    de = 2.0 ** -24 * (1.0 + scale) * np.linalg.norm(proj.g, axis=2).max(axis=1)          # [M]
+    de = 2.0 ** -22 * (1.0 + scale) * np.linalg.norm(proj.g, axis=2).max(axis=1)          # [M]
     if proj.vcolors is not None:
         cspread = np.ptp(proj.vcolors, axis=1).max(axis=1)
     else:  # colour plane only: spread over the triangle ~ |gradient| * size
