@@ -127,7 +127,8 @@ def colmap_frames(root: Path, model_dir: Path, image_dir: Path, warnings: list):
                 undistorters[im.camera_id] = ColmapUndistorter(cam, source=str(model_dir / f"cameras{ext}"))
             und = undistorters[im.camera_id]
         frames.append(FrameSpec(name=im.name, path=image_dir / im.name, camera=pin, group=im.camera_id,
-                                undistort=und, source=f"{model_dir / ('cameras' + ext)} camera {im.camera_id}"))
+                                undistort=und, source=f"{model_dir / ('cameras' + ext)} camera {im.camera_id}",
+                                model=model))
     pts = rec.points3D
     if len(pts) == 0:
         warnings.append(f"{model_dir / ('points3D' + ext)} has no points: initial points are made from the "

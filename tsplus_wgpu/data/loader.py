@@ -182,6 +182,9 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
     train_idx = [j for j, o in enumerate(orig) if o in train_set]
     test_idx = [j for j, o in enumerate(orig) if o in test_set]
     names = [chosen[k].name for k in kept]
+    models = {}
+    for k in kept:
+        models[chosen[k].model] = models.get(chosen[k].model, 0) + 1
 
     source = "sfm" if pts is not None else "none"
     if points == "none":

@@ -149,6 +149,7 @@ class FrameSpec:
         undistort: optional ``(img, camera) -> (img, camera)``.
         is_test: True when the format itself marks this frame as held out (NeRF-synthetic test split).
         source: the file that describes this frame (for error messages).
+        model: camera model name of the source (for the summary).
     """
 
     name: str
@@ -158,6 +159,7 @@ class FrameSpec:
     undistort: Optional[Callable] = None
     is_test: bool = False
     source: str = ""
+    model: str = "PINHOLE"
 
 
 def check_pose(m, where: str) -> np.ndarray:

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..types import Camera
 from .errors import SceneError
-from .images import IMAGE_EXTENSIONS, write_image
+from .images import IMAGE_EXTENSIONS, read_image_size, write_image
 
 CACHE_DIR_NAME = ".tsplus_cache"
 
@@ -34,6 +34,11 @@ def _pycolmap():
         import pycolmap  # noqa: PLC0415
     except ImportError:  # pragma: no cover
         raise SceneError("pycolmap is missing: install it with `pip install pycolmap`") from None
+    try:  # COLMAP's own INFO log is far too chatty for a command line tool
+        if os.environ.get("TSPLUS_COLMAP_LOG") is None:
+            pycolmap.logging.minloglevel = 2
+    except AttributeError:  # pragma: no cover
+        pass
     return pycolmap
 
 
@@ -103,10 +108,14 @@ def _fingerprint(paths) -> str:
 
 
 def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, camera_model: str,
-                       pairs=None, max_image_size: int = 1600, progress: _Progress | None = None):
+                       pairs=None, max_image_size: int = 1600, progress: _Progress | None = None,
+                       small_images: bool = False):
     ext = pycolmap.FeatureExtractionOptions()
     ext.max_image_size = int(max_image_size)
     ext.num_threads = -1
+    if small_images:
+        # small photos give few SIFT peaks at COLMAP's default threshold: lower it
+        ext.sift.peak_threshold = 0.002
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
     pycolmap.extract_features(db, img_dir, image_names=list(names), camera_mode=camera_mode,
@@ -136,6 +145,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
         SceneError: too few photos, or SfM registers too few of them.
     """
     pycolmap = _pycolmap()
+    pycolmap.set_random_seed(0)
     warnings = warnings if warnings is not None else []
     photo_dir = Path(photo_dir)
     if len(names) < 3:
@@ -156,8 +166,12 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     prog = _Progress(progress, 3 + len(names), f"SfM on {len(names)} photos")
     try:
         prog.stage("extracting SIFT features", 0)
-        _extract_and_match(pycolmap, db, photo_dir, names, pycolmap.CameraMode.AUTO, "SIMPLE_RADIAL",
-                           progress=prog)
+        sizes = {read_image_size(photo_dir / n) for n in names}
+        small = max(max(s) for s in sizes) < 1200
+        # one camera for photos of one size (the usual single-device capture), else one per photo
+        mode = pycolmap.CameraMode.SINGLE if len(sizes) == 1 else pycolmap.CameraMode.PER_IMAGE
+        _extract_and_match(pycolmap, db, photo_dir, names, mode, "SIMPLE_RADIAL",
+                           progress=prog, small_images=small)
         prog.stage("incremental mapping")
         opts = pycolmap.IncrementalPipelineOptions()
         opts.num_threads = -1
@@ -226,6 +240,7 @@ def triangulate_known_poses(cameras: list, images: list, names: list, cache_dir:
         RuntimeError: pycolmap failed or produced too few points (the caller falls back to frusta).
     """
     pycolmap = _pycolmap()
+    pycolmap.set_random_seed(0)
     h = hashlib.sha1()
     for cam, img, n in zip(cameras, images, names):
         h.update(n.encode())
@@ -250,7 +265,8 @@ def triangulate_known_poses(cameras: list, images: list, names: list, cache_dir:
         pairs = None if len(names) <= exhaustive_max else _neighbour_pairs(cameras, safe)
         prog.stage("extracting SIFT features", 0)
         _extract_and_match(pycolmap, db, img_dir, safe, pycolmap.CameraMode.PER_IMAGE, "PINHOLE",
-                           pairs=pairs, max_image_size=max_image_size, progress=prog)
+                           pairs=pairs, max_image_size=max_image_size, progress=prog,
+                           small_images=max(cameras[0].width, cameras[0].height) < 1200)
         prog.stage("triangulating")
         rec = pycolmap.Reconstruction()
         with pycolmap.Database.open(db) as database:
@@ -367,3 +383,30 @@ def photo_names(folder: Path) -> list:
     """Image files in a photos-only folder (sorted)."""
     return sorted(p.name for p in Path(folder).iterdir()
                   if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith("."))
+
+
+def reprojection_errors(rec, cameras: list, names: list | None = None) -> np.ndarray:
+    """Pixel distances between each observation of a pycolmap reconstruction and the projection
+    of its 3D point with our :class:`Camera` objects.
+
+    Args:
+        rec: ``pycolmap.Reconstruction``.
+        cameras: cameras matched to the reconstruction's images by ``names`` (image names), or by
+            the ``NNNNN.png`` index names that :func:`triangulate_known_poses` uses when None.
+    """
+    errs = []
+    lookup = {n: i for i, n in enumerate(names)} if names is not None else None
+    for im in rec.images.values():
+        i = lookup.get(im.name) if lookup is not None else int(Path(im.name).stem)
+        if i is None:
+            continue
+        cam = cameras[i]
+        obs = [(p.xy, rec.points3D[p.point3D_id].xyz) for p in im.points2D if p.has_point3D()]
+        if not obs:
+            continue
+        xy = np.array([o[0] for o in obs])
+        X = np.array([o[1] for o in obs])
+        xc = X @ cam.R.T + cam.t
+        uv = np.stack([cam.fx * xc[:, 0] / xc[:, 2] + cam.cx, cam.fy * xc[:, 1] / xc[:, 2] + cam.cy], 1)
+        errs.append(np.linalg.norm(uv - xy, axis=1))
+    return np.concatenate(errs) if errs else np.zeros(0)

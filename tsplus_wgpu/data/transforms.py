@@ -172,5 +172,5 @@ def transforms_frames(root: Path, files: list, variant: str, warnings: list):
             models[label] = models.get(label, 0) + 1
             group = (str(fpath), cam.width, cam.height) if ("w" in fr or "h" in fr) else "shared"
             frames.append(FrameSpec(name=name, path=path, camera=cam, group=group, undistort=und,
-                                    is_test=is_test, source=str(fpath)))
+                                    is_test=is_test, source=str(fpath), model=label))
     return frames, models
