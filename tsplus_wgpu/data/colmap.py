@@ -53,6 +53,8 @@ def _precheck(model_dir: Path):
             raise SceneError(f"{f}: missing from the COLMAP model; export the complete model "
                              "(cameras, images, points3D) again")
     names, ids = _known_models()
+    if ext == ".txt":
+        _precheck_images_txt(model_dir / "images.txt")
     cam_file = model_dir / f"cameras{ext}"
     if ext == ".txt":
         for ln, line in enumerate(cam_file.read_text(errors="replace").splitlines(), 1):
@@ -74,6 +76,29 @@ def _precheck(model_dir: Path):
                 if model_id not in ids:
                     raise SceneError(f"{cam_file}: unknown camera model id {model_id}; "
                                      "re-export the model with a current COLMAP")
+
+
+def _precheck_images_txt(img_file: Path):
+    """COLMAP cannot parse 'nan'/'inf' in images.txt: report the image and line instead."""
+    lines = [ln for ln in img_file.read_text(errors="replace").splitlines() if not ln.startswith("#")]
+    nums = img_file.read_text(errors="replace").splitlines()
+    k = 0
+    physical = [i for i, ln in enumerate(nums, 1) if not ln.startswith("#")]
+    while k < len(lines):
+        parts = lines[k].split()
+        if parts:
+            name = parts[9] if len(parts) > 9 else "?"
+            try:
+                vals = [float(v) for v in parts[1:8]]
+            except ValueError:
+                raise SceneError(f"{img_file}:{physical[k]} (image {name!r}): malformed pose; expected "
+                                 "'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'") from None
+            if len(vals) < 7 or not all(np.isfinite(vals)):
+                raise SceneError(f"{img_file}:{physical[k]} (image {name!r}): pose contains non-finite values "
+                                 "(NaN or Inf); fix or remove this image from the model")
+            k += 2  # skip the POINTS2D line
+        else:
+            k += 1
 
 
 def read_model(model_dir: Path):
