@@ -36,7 +36,7 @@ def _pycolmap():
         raise SceneError("pycolmap is missing: install it with `pip install pycolmap`") from None
     try:  # COLMAP's own INFO log is far too chatty for a command line tool
         if os.environ.get("TSPLUS_COLMAP_LOG") is None:
-            pycolmap.logging.minloglevel = 2
+            pycolmap.logging.minloglevel = 3
     except AttributeError:  # pragma: no cover
         pass
     return pycolmap
