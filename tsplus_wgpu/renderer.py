@@ -255,3 +255,10 @@ class Renderer:
         if prof is not None:
             times = prof.resolve()
         return ForwardResult(self, camera, model, sigma, tuple(bg), near, b, num_pairs, times)
+
+    def backward(self, result, v_image, v_transmittance=None):
+        """Gradients of ``sum(v_image * image) + sum(v_transmittance * T)`` of ``result``
+        (see :func:`tsplus_wgpu.backward.backward`): ``Grads`` with ``v_positions [N, 3]``,
+        ``v_sh [N, K, 3]``, ``v_opacity [N]``. Portable and deterministic."""
+        from .backward import backward
+        return backward(self, result, v_image, v_transmittance)

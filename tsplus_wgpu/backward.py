@@ -1,0 +1,199 @@
+"""The backward pass on the device: portable (no float atomics) and deterministic.
+
+Stages, each a ``shaders/<stage>.wgsl`` with a class of the same name:
+
+1. ``rasterize_backward`` (per tile): front-to-back replay of the forward blend up to each
+   pixel's last contributing pair; per (triangle, tile) pair the 19 sufficient statistics
+   of ``common/grad_stats.wgsl``, summed over the tile's pixels in a fixed order.
+2. ``invert_permutation``: depth rank of every triangle.
+3. ``pair_reduce`` (per triangle): sum of its pairs' statistics, tiles in a fixed order
+   (its pair in each tile found by binary search on the depth rank).
+4. ``project_backward`` (per triangle): exact chain rule to its three corners.
+5. corner -> vertex CSR: the triangle index buffer sorted by vertex with the stable
+   :class:`RadixSort` (values: corner indices), so each vertex's corners come in order.
+6. ``vertex_backward`` (per vertex): gather its corners, then the SH chain rule.
+
+Every float sum has a fixed order, so the gradients are bit-identical from run to run on
+one adapter, and nothing is lost on shared vertices.
+"""
+
+from __future__ import annotations
+
+import time
+import weakref
+
+import numpy as np
+
+from .gpu import Profiler, Stage
+from .reference_backward import Grads, check_cotangents
+from .stages import RadixSort
+
+NSTAT = 20
+
+
+def _groups(n, per):
+    return max(1, (int(n) + per - 1) // per)
+
+
+class RasterizeBackward(Stage):
+    stage = "rasterize_backward"
+
+    def __call__(self, enc, params, ranges, pair_tris, tris, image, final_t, n_contrib, v_out, partials,
+                 tiles_x, tiles_y, profiler=None):
+        enc.clear_buffer(partials)
+        self.dispatch(enc, (tiles_x, tiles_y, 1),
+                      dict(params=params, ranges=ranges, pair_tris=pair_tris, tris=tris, image=image,
+                           final_t=final_t, n_contrib=n_contrib, v_out=v_out, partials=partials), profiler)
+
+
+class InvertPermutation(Stage):
+    stage = "invert_permutation"
+
+    def __call__(self, enc, src, dst, n, profiler=None):
+        pp = self.uniform("PermParams", n=n)
+        self.dispatch(enc, _groups(n, 256), dict(pp=pp, src=src, dst=dst), profiler)
+
+
+class PairReduce(Stage):
+    stage = "pair_reduce"
+
+    def __call__(self, enc, params, pixel_rects, ranges, pair_tris, rank_from_tri, partials, tri_stats,
+                 num_triangles, profiler=None):
+        self.dispatch(enc, _groups(num_triangles, 256),
+                      dict(params=params, pixel_rects=pixel_rects, ranges=ranges, pair_tris=pair_tris,
+                           rank_from_tri=rank_from_tri, partials=partials, tri_stats=tri_stats), profiler)
+
+
+class ProjectBackward(Stage):
+    stage = "project_backward"
+
+    def __call__(self, enc, params, positions, triangles, opacities, colors, tris, pixel_rects, tri_stats,
+                 corner_grads, num_triangles, profiler=None):
+        self.dispatch(enc, _groups(num_triangles, 256),
+                      dict(params=params, positions=positions, triangles=triangles, opacities=opacities,
+                           colors=colors, tris=tris, pixel_rects=pixel_rects, tri_stats=tri_stats,
+                           corner_grads=corner_grads), profiler)
+
+
+class VertexBackward(Stage):
+    stage = "vertex_backward"
+
+    def __call__(self, enc, params, positions, sh, sorted_keys, sorted_corners, corner_grads, v_positions,
+                 v_sh, v_opacity, num_vertices, profiler=None):
+        self.dispatch(enc, _groups(num_vertices, 256),
+                      dict(params=params, positions=positions, sh_coeffs=sh, sorted_keys=sorted_keys,
+                           sorted_corners=sorted_corners, corner_grads=corner_grads, v_positions=v_positions,
+                           v_sh=v_sh, v_opacity=v_opacity), profiler)
+
+
+class BackwardPass:
+    """The stages of the backward pass for one :class:`Renderer` (pipelines compiled once)."""
+
+    def __init__(self, renderer):
+        c = renderer.ctx
+        self.renderer = renderer
+        self.ctx = c
+        self.raster = RasterizeBackward(c)
+        self.invert = InvertPermutation(c)
+        self.pair_reduce = PairReduce(c)
+        self.project = ProjectBackward(c)
+        self.vertex = VertexBackward(c)
+        self.corner_sort = RadixSort(c, renderer.scratch, "corner_sort")
+
+    def run(self, result, v_image, v_transmittance=None, profile=False, read=True):
+        r = self.renderer
+        c = self.ctx
+        cam, model = result.camera, result.model
+        h, w = cam.height, cam.width
+        vi, vt = check_cotangents(v_image, v_transmittance, h, w)
+        m, n, k = model.num_triangles, model.num_vertices, model.sh_size
+        tx, ty, _ = r._tiles(cam)
+        P = result.num_pairs
+        for name, nbytes in (("backward pair statistics", 4 * NSTAT * P), ("backward triangle statistics", 4 * NSTAT * m),
+                             ("backward corner gradients", 32 * 3 * m), ("v_sh", 12 * n * k)):
+            c.check_size(name, nbytes)
+        b = result.buffers
+        host_timing = profile and not c.features.timestamps
+        prof = Profiler(c) if profile and c.features.timestamps else None
+        times = {}
+
+        def submit(enc, label):
+            c.queue.submit([enc.finish()])
+            if host_timing:
+                c.wait()
+                now = time.perf_counter()
+                times[label] = times.get(label, 0.0) + (now - submit.t) * 1e3
+                submit.t = now
+
+        v_out = np.zeros((h * w, 4), np.float32)
+        v_out[:, :3] = vi.reshape(-1, 3)
+        v_out[:, 3] = vt.reshape(-1)
+        dev = r.upload_model(model)
+        out = dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh"),
+                   v_opacity=c.buffer(4 * n, "v_opacity"))
+        params = r._frame_params(model, cam, result.sigma, np.asarray(result.background), result.near, P)
+        keys = c.buffer(12 * m, "corner_keys")
+        vals = c.upload(np.arange(3 * m, dtype=np.uint32), "corner_ids")
+        buf = dict(v_out=c.upload(v_out, "v_out"), partials=c.buffer(4 * NSTAT * P, "partials"),
+                   rank_from_tri=c.buffer(4 * m, "rank_from_tri"), tri_stats=c.buffer(4 * NSTAT * m, "tri_stats"),
+                   corner_grads=c.buffer(32 * 3 * m, "corner_grads"))
+        if host_timing:
+            c.wait()
+        submit.t = time.perf_counter()
+        enc = c.device.create_command_encoder()
+        self.raster(enc, params, b["ranges"], b["pair_tris"], b["tris"], b["image"], b["final_t"], b["n_contrib"],
+                    buf["v_out"], buf["partials"], tx, ty, prof)
+        submit(enc, "rasterize_backward"); enc = c.device.create_command_encoder()
+        self.invert(enc, b["tri_from_rank"], buf["rank_from_tri"], m, prof)
+        self.pair_reduce(enc, params, b["pixel_rects"], b["ranges"], b["pair_tris"], buf["rank_from_tri"],
+                         buf["partials"], buf["tri_stats"], m, prof)
+        submit(enc, "pair_reduce"); enc = c.device.create_command_encoder()
+        self.project(enc, params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"], b["tris"],
+                     b["pixel_rects"], buf["tri_stats"], buf["corner_grads"], m, prof)
+        submit(enc, "project_backward"); enc = c.device.create_command_encoder()
+        enc.copy_buffer_to_buffer(dev["triangles"], 0, keys, 0, 12 * m)
+        bits = max(1, int(n - 1).bit_length())
+        skeys, svals = self.corner_sort.record(enc, keys, vals, 3 * m, bits, prof)
+        submit(enc, "corner_sort"); enc = c.device.create_command_encoder()
+        self.vertex(enc, params, dev["positions"], dev["sh"], skeys, svals, buf["corner_grads"], out["v_positions"],
+                    out["v_sh"], out["v_opacity"], n, prof)
+        submit(enc, "vertex_backward")
+        if prof is not None:
+            times = prof.resolve()
+        if not read:
+            c.wait()
+            return times
+        grads = Grads(v_positions=c.read(out["v_positions"], np.float32, 3 * n).reshape(n, 3),
+                      v_sh=c.read(out["v_sh"], np.float32, 3 * n * k).reshape(n, k, 3),
+                      v_opacity=c.read(out["v_opacity"], np.float32, n))
+        grads.timings = times
+        grads.buffers = dict(buf, **out)
+        return grads
+
+
+_PASSES = weakref.WeakKeyDictionary()
+
+
+def backward(renderer, result, v_image, v_transmittance=None, profile=False) -> Grads:
+    """Gradients of ``sum(v_image * image) + sum(v_transmittance * T)`` of a forward pass.
+
+    Args:
+        renderer: the :class:`Renderer` that produced ``result``.
+        result: a :class:`ForwardResult` (its device buffers are read, not changed).
+        v_image: ``[H, W, 3]`` dL/d image.
+        v_transmittance: ``[H, W]`` dL/d final transmittance, or None.
+        profile: time each stage (``grads.timings``, ms).
+
+    Returns:
+        :class:`Grads` with ``v_positions [N, 3]``, ``v_sh [N, K, 3]``, ``v_opacity [N]``
+        (float32; w.r.t. the activated opacity given to ``forward``).
+    """
+    from .renderer import ForwardResult
+    if not isinstance(result, ForwardResult):
+        raise ValueError(f"result: expected a ForwardResult, got {type(result).__name__}")
+    if result.renderer is not renderer:
+        raise ValueError("result: it was produced by another Renderer")
+    bp = _PASSES.get(renderer)
+    if bp is None:
+        bp = _PASSES[renderer] = BackwardPass(renderer)
+    return bp.run(result, v_image, v_transmittance, profile)
