@@ -138,8 +138,9 @@ def transforms_frames(root: Path, files: list, variant: str, warnings: list):
                     except SceneError:
                         w, h = None, None
             if w is None or h is None:
-                # unknown until the image is read; cannot build intrinsics -> let the loader skip it
-                w, h = float(merged.get("_fallback_w", 800)), float(merged.get("_fallback_h", 800))
+                # image missing or unreadable and no 'w'/'h': placeholder size; the image loader
+                # skips this frame (or raises in strict mode) before the camera is ever used
+                w, h = 800.0, 800.0
             fl_x, fl_y = _num(merged, "fl_x", where), _num(merged, "fl_y", where)
             ax, ay = _num(merged, "camera_angle_x", where), _num(merged, "camera_angle_y", where)
             if fl_x is None and ax is not None:
