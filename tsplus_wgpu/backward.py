@@ -128,9 +128,15 @@ class BackwardPass:
         v_out = np.zeros((h * w, 4), np.float32)
         v_out[:, :3] = vi.reshape(-1, 3)
         v_out[:, 3] = vt.reshape(-1)
-        dev = r.upload_model(model)
         out = dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh"),
                    v_opacity=c.buffer(4 * n, "v_opacity"))
+        if P == 0:   # nothing reached the image: every gradient is zero (cheap for empty views)
+            enc = c.device.create_command_encoder()
+            for buf_ in out.values():
+                enc.clear_buffer(buf_)
+            c.queue.submit([enc.finish()])
+            return self._finish(out, n, k, {}, {}, read)
+        dev = r.upload_model(model)
         params = r._frame_params(model, cam, result.sigma, np.asarray(result.background), result.near, P)
         keys = c.buffer(12 * m, "corner_keys")
         vals = c.upload(np.arange(3 * m, dtype=np.uint32), "corner_ids")
@@ -160,6 +166,10 @@ class BackwardPass:
         submit(enc, "vertex_backward")
         if prof is not None:
             times = prof.resolve()
+        return self._finish(out, n, k, buf, times, read)
+
+    def _finish(self, out, n, k, buf, times, read):
+        c = self.ctx
         if not read:
             c.wait()
             return times
