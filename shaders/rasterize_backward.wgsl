@@ -6,10 +6,12 @@
 // which needs no division of T (no error growth through deep stacks).
 //
 // Deterministic and atomic-free for floats: the triangles are taken RB at a time; every
-// pixel writes its per-(pixel, triangle) record (colour weight alpha*T, dL/d ratio with
-// the argmin edge, dL/d o) to workgroup memory; then fixed groups of invocations sum the
-// records in a fixed pixel order into the 19 statistics of grad_stats.wgsl, written per
-// sorted pair index to `partials` (pairs past the tile's last contribution stay zero).
+// pixel writes its per-(pixel, triangle) record (colour weight alpha*T with the argmin
+// edge in its two lowest mantissa bits, dL/d ratio, dL/d o) to workgroup memory; then
+// fixed groups of invocations sum the records in a fixed pixel order into the 19
+// statistics of grad_stats.wgsl (each invocation: one quantity, its three moments, over
+// 32 pixels; then the 8 partial sums in order), written per sorted pair index to
+// `partials` (pairs past the tile's last contribution stay zero). Three barriers per round.
 #import frame
 #import triangle
 #import grad_stats
@@ -24,20 +26,17 @@
 @group(0) @binding(7) var<storage, read> v_out: array<vec4<f32>>;       // [H, W]: dL/d image (xyz), dL/d T (w)
 @group(0) @binding(8) var<storage, read_write> partials: array<f32>;    // [P, NSTAT]
 
-const RB: u32 = 2u;          // triangles per round (workgroup memory: 4 KiB of records each)
-const HELPERS: u32 = 4u;     // invocations per statistic, each summing 64 pixels
-const PIX_PER_HELPER: u32 = 64u;
+const RB: u32 = 4u;          // triangles per round
+const KINDS: u32 = 7u;       // summed quantities: colour weight x v (rgb), dL/d ratio per argmin edge (3), dL/d o
+const HELPERS: u32 = 8u;     // invocations per (triangle, quantity), each summing 32 pixels
+const PIX_PER_HELPER: u32 = 32u;
 
-var<workgroup> rtris: array<Tri2D, 2>;
-var<workgroup> rec_w: array<f32, 512>;     // [RB, 256] alpha * T (0: no contribution)
-var<workgroup> rec_vr: array<f32, 512>;    // [RB, 256] dL/d ratio
-var<workgroup> rec_vo: array<f32, 512>;    // [RB, 256] dL/d o
-var<workgroup> rec_k: array<u32, 512>;     // [RB, 256] argmin edge
-var<workgroup> vo_r: array<f32, 256>;
-var<workgroup> vo_g: array<f32, 256>;
-var<workgroup> vo_b: array<f32, 256>;
-var<workgroup> part: array<f32, 160>;      // [RB, NSTAT, HELPERS]
-var<workgroup> live: array<atomic<u32>, 2>;
+var<workgroup> rtris: array<Tri2D, 4>;
+var<workgroup> rec_w: array<f32, 1024>;    // [RB, 256] alpha * T, argmin edge in the low 2 bits (0: none)
+var<workgroup> rec_vr: array<f32, 1024>;   // [RB, 256] dL/d ratio
+var<workgroup> rec_vo: array<f32, 1024>;   // [RB, 256] dL/d o
+var<workgroup> part: array<f32, 672>;      // [RB, KINDS, HELPERS, 3 moments]
+var<workgroup> live: array<atomic<u32>, 4>;
 var<workgroup> max_last: atomic<u32>;
 var<workgroup> rounds_shared: u32;
 
@@ -54,6 +53,12 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
     if (li == 0u) {
         atomicStore(&max_last, 0u);
     }
+    if (li < RB) {
+        if (range.x + li < range.y) {
+            rtris[li] = tris[pair_tris[range.x + li]];
+        }
+        atomicStore(&live[li], 0u);
+    }
     workgroupBarrier();
     var last = 0u;
     var vout = vec3<f32>(0.0);
@@ -66,9 +71,6 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         Z = dot(vec3<f32>(image[3u * pix], image[3u * pix + 1u], image[3u * pix + 2u]), vout) + final_t[pix] * v.w;
         atomicMax(&max_last, last);
     }
-    vo_r[li] = vout.x;
-    vo_g[li] = vout.y;
-    vo_b[li] = vout.z;
     workgroupBarrier();
     if (li == 0u) {
         rounds_shared = (atomicLoad(&max_last) + RB - 1u) / RB;
@@ -78,13 +80,6 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
     var acc = 0.0;
     for (var b = 0u; b < rounds; b++) {
         let first = range.x + b * RB;
-        if (li < RB) {
-            if (first + li < range.y) {
-                rtris[li] = tris[pair_tris[first + li]];
-            }
-            atomicStore(&live[li], 0u);
-        }
-        workgroupBarrier();
         // ---- phase 1: per pixel, the forward's decisions and the per-pair records
         for (var j = 0u; j < RB; j++) {
             var w = 0.0;
@@ -120,58 +115,78 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
                 }
             }
             let slot = j * 256u + li;
-            rec_w[slot] = w;
+            rec_w[slot] = bitcast<f32>((bitcast<u32>(w) & 0xfffffffcu) | kmin);
             rec_vr[slot] = vr;
             rec_vo[slot] = vo;
-            rec_k[slot] = kmin;
         }
         workgroupBarrier();
-        // ---- phase 2: statistic q of triangle j, HELPERS partial sums of 64 pixels each
-        if (li < RB * NSTAT * HELPERS) {
-            let j = li / (NSTAT * HELPERS);
-            let rem = li % (NSTAT * HELPERS);
-            let q = rem / HELPERS;
-            let i0 = (rem % HELPERS) * PIX_PER_HELPER;
-            var sum = 0.0;
-            if (atomicLoad(&live[j]) != 0u && q < 19u) {
+        // ---- phase 2: (triangle, quantity, helper): the quantity times 1, d.x, d.y over 32 pixels
+        if (li < RB * KINDS * HELPERS) {
+            let j = li / (KINDS * HELPERS);
+            let kind = (li / HELPERS) % KINDS;
+            let i0 = (li % HELPERS) * PIX_PER_HELPER;
+            var s0 = 0.0;
+            var s1 = 0.0;
+            var s2 = 0.0;
+            if (atomicLoad(&live[j]) != 0u) {
                 let s = rtris[j].s;
-                var mom = 0u;
-                if (q < 9u) {
-                    mom = q % 3u;
-                } else if (q < 18u) {
-                    mom = (q - 9u) % 3u;
-                }
-                let ch = q / 3u;
-                let kk = (q - 9u) / 3u;
                 for (var i = i0; i < i0 + PIX_PER_HELPER; i++) {
                     let slot = j * 256u + i;
-                    let d = vec2<f32>(f32(wid.x * TILE + (i % TILE)) + 0.5, f32(wid.y * TILE + i / TILE) + 0.5) - s;
-                    var val: f32;
-                    if (q < 9u) {
-                        let vc = select(select(vo_b[i], vo_g[i], ch == 1u), vo_r[i], ch == 0u);
-                        val = rec_w[slot] * vc;
-                    } else if (q < 18u) {
-                        val = select(0.0, rec_vr[slot], rec_k[slot] == kk);
+                    let qx = wid.x * TILE + (i % TILE);
+                    let qy = wid.y * TILE + i / TILE;
+                    let bits = bitcast<u32>(rec_w[slot]);
+                    var val = 0.0;
+                    if (kind < 3u) {
+                        let wt = bitcast<f32>(bits & 0xfffffffcu);
+                        if (wt != 0.0) {
+                            val = wt * v_out[qy * params.width + qx][kind];
+                        }
+                    } else if (kind < 6u) {
+                        val = select(0.0, rec_vr[slot], (bits & 3u) == kind - 3u);
                     } else {
                         val = rec_vo[slot];
                     }
-                    sum += val * select(select(d.y, d.x, mom == 1u), 1.0, mom == 0u);
+                    let d = vec2<f32>(f32(qx) + 0.5, f32(qy) + 0.5) - s;
+                    s0 += val;
+                    s1 += val * d.x;
+                    s2 += val * d.y;
                 }
             }
-            part[li] = sum;
+            part[3u * li] = s0;
+            part[3u * li + 1u] = s1;
+            part[3u * li + 2u] = s2;
         }
         workgroupBarrier();
-        // ---- phase 3: the HELPERS partial sums in a fixed order, one pair per triangle
+        // ---- phase 3: the HELPERS partial sums in a fixed order, one pair per triangle;
+        // meanwhile other invocations stage the next round's triangles
         if (li < RB * NSTAT) {
             let j = li / NSTAT;
             let q = li % NSTAT;
             if (first + j < range.y) {
-                var s = 0.0;
-                for (var h = 0u; h < HELPERS; h++) {
-                    s += part[(j * NSTAT + q) * HELPERS + h];
+                var kind = 6u;
+                var m = 0u;
+                if (q < 9u) {
+                    kind = q / 3u;
+                    m = q % 3u;
+                } else if (q < 18u) {
+                    kind = 3u + (q - 9u) / 3u;
+                    m = (q - 9u) % 3u;
                 }
-                partials[(first + j) * NSTAT + q] = s;
+                var sum = 0.0;
+                if (q < 19u) {
+                    for (var h = 0u; h < HELPERS; h++) {
+                        sum += part[3u * ((j * KINDS + kind) * HELPERS + h) + m];
+                    }
+                }
+                partials[(first + j) * NSTAT + q] = sum;
             }
+        } else if (li >= 128u && li < 128u + RB) {
+            let j = li - 128u;
+            let nxt = first + RB + j;
+            if (b + 1u < rounds && nxt < range.y) {
+                rtris[j] = tris[pair_tris[nxt]];
+            }
+            atomicStore(&live[j], 0u);
         }
         workgroupBarrier();
     }
