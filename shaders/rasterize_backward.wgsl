@@ -3,7 +3,9 @@
 // (n_contrib.x). With Z = image . v + T_final * v_T (the pixel's whole loss) and
 // acc_j = (colour accumulated up to and including j) . v, the derivative of alpha_j is
 //   dL/d alpha_j = T_j (c_j(p) . v) - (Z - acc_j) / (1 - alpha_j),
-// which needs no division of T (no error growth through deep stacks).
+// which needs no division of T (no error growth through deep stacks). T, acc, Z and
+// the pixel's last pair come from `state` (backward_prepare) and go back to it, so the
+// rounds can be split over several dispatches (PassParams).
 //
 // Deterministic and atomic-free for floats: the triangles are taken RB at a time; every
 // pixel writes its per-(pixel, triangle) record (colour weight alpha*T with the argmin
@@ -16,15 +18,21 @@
 #import triangle
 #import grad_stats
 
+struct PassParams {
+    round_begin: u32,   // rounds [round_begin, round_end) of RB pairs in this dispatch: lavapipe
+    round_end: u32,     // stops any invocation's loops after 65535 iterations in total
+    _pad0: u32,
+    _pad1: u32,
+}
+
 @group(0) @binding(0) var<uniform> params: FrameParams;
-@group(0) @binding(1) var<storage, read> ranges: array<vec2<u32>>;      // [tiles]
-@group(0) @binding(2) var<storage, read> pair_tris: array<u32>;         // [P] sorted
-@group(0) @binding(3) var<storage, read> tris: array<Tri2D>;            // [M]
-@group(0) @binding(4) var<storage, read> image: array<f32>;             // [H, W, 3]
-@group(0) @binding(5) var<storage, read> final_t: array<f32>;           // [H, W]
-@group(0) @binding(6) var<storage, read> n_contrib: array<vec2<u32>>;   // [H, W]
-@group(0) @binding(7) var<storage, read> v_out: array<vec4<f32>>;       // [H, W]: dL/d image (xyz), dL/d T (w)
-@group(0) @binding(8) var<storage, read_write> partials: array<f32>;    // [P, NSTAT]
+@group(0) @binding(1) var<uniform> pp: PassParams;
+@group(0) @binding(2) var<storage, read> ranges: array<vec2<u32>>;      // [tiles]
+@group(0) @binding(3) var<storage, read> pair_tris: array<u32>;         // [P] sorted
+@group(0) @binding(4) var<storage, read> tris: array<Tri2D>;            // [M]
+@group(0) @binding(5) var<storage, read> v_out: array<vec4<f32>>;       // [H, W]: dL/d image (xyz), dL/d T (w)
+@group(0) @binding(6) var<storage, read_write> state: array<vec4<f32>>; // [H, W]: T, acc, Z, last (backward_prepare)
+@group(0) @binding(7) var<storage, read_write> partials: array<f32>;    // [P, NSTAT]
 
 const RB: u32 = 4u;          // triangles per round
 const KINDS: u32 = 7u;       // summed quantities: colour weight x v (rgb), dL/d ratio per argmin edge (3), dL/d o
@@ -53,32 +61,41 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
     if (li == 0u) {
         atomicStore(&max_last, 0u);
     }
-    if (li < RB) {
-        if (range.x + li < range.y) {
-            rtris[li] = tris[pair_tris[range.x + li]];
-        }
-        atomicStore(&live[li], 0u);
+    var last = 0u;
+    var T = 1.0;
+    var acc = 0.0;
+    var Z = 0.0;
+    var vout = vec3<f32>(0.0);
+    let pix = py * params.width + px;
+    if (inside) {
+        let st = state[pix];
+        T = st.x;
+        acc = st.y;
+        Z = st.z;
+        last = bitcast<u32>(st.w);
+        vout = v_out[pix].xyz;
     }
     workgroupBarrier();
-    var last = 0u;
-    var vout = vec3<f32>(0.0);
-    var Z = 0.0;
     if (inside) {
-        let pix = py * params.width + px;
-        last = n_contrib[pix].x;
-        let v = v_out[pix];
-        vout = v.xyz;
-        Z = dot(vec3<f32>(image[3u * pix], image[3u * pix + 1u], image[3u * pix + 2u]), vout) + final_t[pix] * v.w;
         atomicMax(&max_last, last);
     }
     workgroupBarrier();
     if (li == 0u) {
-        rounds_shared = (atomicLoad(&max_last) + RB - 1u) / RB;
+        rounds_shared = min((atomicLoad(&max_last) + RB - 1u) / RB, pp.round_end);
     }
-    let rounds = workgroupUniformLoad(&rounds_shared);
-    var T = 1.0;
-    var acc = 0.0;
-    for (var b = 0u; b < rounds; b++) {
+    let round_end = workgroupUniformLoad(&rounds_shared);
+    let round_begin = pp.round_begin;
+    if (round_begin >= round_end) {
+        return;
+    }
+    if (li < RB) {
+        if (range.x + round_begin * RB + li < range.y) {
+            rtris[li] = tris[pair_tris[range.x + round_begin * RB + li]];
+        }
+        atomicStore(&live[li], 0u);
+    }
+    workgroupBarrier();
+    for (var b = round_begin; b < round_end; b++) {
         let first = range.x + b * RB;
         // ---- phase 1: per pixel, the forward's decisions and the per-pair records
         for (var j = 0u; j < RB; j++) {
@@ -183,11 +200,14 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         } else if (li >= 128u && li < 128u + RB) {
             let j = li - 128u;
             let nxt = first + RB + j;
-            if (b + 1u < rounds && nxt < range.y) {
+            if (b + 1u < round_end && nxt < range.y) {
                 rtris[j] = tris[pair_tris[nxt]];
             }
             atomicStore(&live[j], 0u);
         }
         workgroupBarrier();
+    }
+    if (inside) {
+        state[pix] = vec4<f32>(T, acc, Z, bitcast<f32>(last));
     }
 }

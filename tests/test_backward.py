@@ -230,3 +230,19 @@ def test_backward_rejects_bad_cotangents(renderer):
         renderer.backward(res, np.zeros((H, W, 3)), np.full((H, W), np.inf))
     with pytest.raises(ValueError, match="v_image"):
         rb.backward(model, cam, 1.0, np.zeros((H + 1, W, 3)))
+
+
+def test_backward_in_passes_is_identical(renderer, monkeypatch):
+    """rasterize_backward split into passes of a few rounds (as it is beyond 4096 pairs
+    per tile, for lavapipe's loop limit) gives bit-identical gradients."""
+    from tsplus_wgpu import backward as bw
+    model, cam = f32_exact(*random_scene(8, 48, 40, sheets=5, points_per_sheet=20, sh_k=4))
+    rng = np.random.default_rng(2)
+    vi, vt = rng.normal(size=(40, 48, 3)), rng.normal(size=(40, 48))
+    res = renderer.forward(model, cam, 0.7, BG)
+    one = renderer.backward(res, vi, vt)
+    monkeypatch.setattr(bw, "ROUNDS_PER_PASS", 2)
+    many = renderer.backward(res, vi, vt)
+    assert int((res.tile_ranges()[:, 1] - res.tile_ranges()[:, 0]).max()) > 4 * 2 * 3
+    for name in GROUPS:
+        assert np.array_equal(getattr(one, name), getattr(many, name)), name

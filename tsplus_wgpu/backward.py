@@ -2,7 +2,8 @@
 
 Stages, each a ``shaders/<stage>.wgsl`` with a class of the same name:
 
-1. ``rasterize_backward`` (per tile): front-to-back replay of the forward blend up to each
+1. ``backward_prepare`` (per pixel): the blend's starting state; ``rasterize_backward``
+   (per tile, in passes of at most 4096 pairs per tile): front-to-back replay of the forward blend up to each
    pixel's last contributing pair; per (triangle, tile) pair the 19 sufficient statistics
    of ``common/grad_stats.wgsl``, summed over the tile's pixels in a fixed order.
 2. ``invert_permutation``: depth rank of every triangle.
@@ -35,15 +36,33 @@ def _groups(n, per):
     return max(1, (int(n) + per - 1) // per)
 
 
+#: Rounds (of 4 pairs) per dispatch of rasterize_backward: about 45 loop iterations per
+#: round and invocation, under lavapipe's limit of 65535 per invocation.
+ROUNDS_PER_PASS = 1024
+PAIRS_PER_ROUND = 4
+
+
+class BackwardPrepare(Stage):
+    stage = "backward_prepare"
+
+    def __call__(self, enc, params, image, final_t, n_contrib, v_out, state, num_pixels, profiler=None):
+        self.dispatch(enc, _groups(num_pixels, 256),
+                      dict(params=params, image=image, final_t=final_t, n_contrib=n_contrib, v_out=v_out,
+                           state=state), profiler)
+
+
 class RasterizeBackward(Stage):
     stage = "rasterize_backward"
 
-    def __call__(self, enc, params, ranges, pair_tris, tris, image, final_t, n_contrib, v_out, partials,
-                 tiles_x, tiles_y, profiler=None):
+    def __call__(self, enc, params, ranges, pair_tris, tris, v_out, state, partials, tiles_x, tiles_y,
+                 max_range, profiler=None):
         enc.clear_buffer(partials)
-        self.dispatch(enc, (tiles_x, tiles_y, 1),
-                      dict(params=params, ranges=ranges, pair_tris=pair_tris, tris=tris, image=image,
-                           final_t=final_t, n_contrib=n_contrib, v_out=v_out, partials=partials), profiler)
+        rounds = (int(max_range) + PAIRS_PER_ROUND - 1) // PAIRS_PER_ROUND
+        for r0 in range(0, max(rounds, 1), ROUNDS_PER_PASS):
+            pp = self.uniform("PassParams", round_begin=r0, round_end=r0 + ROUNDS_PER_PASS)
+            self.dispatch(enc, (tiles_x, tiles_y, 1),
+                          dict(params=params, pp=pp, ranges=ranges, pair_tris=pair_tris, tris=tris, v_out=v_out,
+                               state=state, partials=partials), profiler)
 
 
 class InvertPermutation(Stage):
@@ -93,6 +112,7 @@ class BackwardPass:
         c = renderer.ctx
         self.renderer = renderer
         self.ctx = c
+        self.prepare = BackwardPrepare(c)
         self.raster = RasterizeBackward(c)
         self.invert = InvertPermutation(c)
         self.pair_reduce = PairReduce(c)
@@ -142,13 +162,17 @@ class BackwardPass:
         vals = c.upload(np.arange(3 * m, dtype=np.uint32), "corner_ids")
         buf = dict(v_out=c.upload(v_out, "v_out"), partials=c.buffer(4 * NSTAT * P, "partials"),
                    rank_from_tri=c.buffer(4 * m, "rank_from_tri"), tri_stats=c.buffer(4 * NSTAT * m, "tri_stats"),
-                   corner_grads=c.buffer(32 * 3 * m, "corner_grads"))
+                   corner_grads=c.buffer(32 * 3 * m, "corner_grads"), state=c.buffer(16 * h * w, "backward_state"))
+        # the longest tile list sizes the passes of rasterize_backward (a small readback)
+        rg = c.read(b["ranges"], np.uint32, 2 * tx * ty).reshape(-1, 2).astype(np.int64)
+        max_range = int((rg[:, 1] - rg[:, 0]).max(initial=0))
         if host_timing:
             c.wait()
         submit.t = time.perf_counter()
         enc = c.device.create_command_encoder()
-        self.raster(enc, params, b["ranges"], b["pair_tris"], b["tris"], b["image"], b["final_t"], b["n_contrib"],
-                    buf["v_out"], buf["partials"], tx, ty, prof)
+        self.prepare(enc, params, b["image"], b["final_t"], b["n_contrib"], buf["v_out"], buf["state"], h * w, prof)
+        self.raster(enc, params, b["ranges"], b["pair_tris"], b["tris"], buf["v_out"], buf["state"], buf["partials"],
+                    tx, ty, max_range, prof)
         submit(enc, "rasterize_backward"); enc = c.device.create_command_encoder()
         self.invert(enc, b["tri_from_rank"], buf["rank_from_tri"], m, prof)
         self.pair_reduce(enc, params, b["pixel_rects"], b["ranges"], b["pair_tris"], buf["rank_from_tri"],
