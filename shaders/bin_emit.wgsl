@@ -1,40 +1,40 @@
-// Binning, writing pass: each triangle (in depth order) writes its (tile, triangle)
-// pairs at its offset from the exclusive prefix sum of bin_count's counts.
+// Binning, writing pass: each (triangle, tile row) item writes its (tile, triangle)
+// pairs at its offset from the exclusive prefix sum of bin_count's counts. Items are in
+// depth-rank order, so pairs come out ordered by rank, then tile.
 #import frame
 #import dispatch
 #import triangle
+#import binning
 
 @group(0) @binding(0) var<uniform> params: FrameParams;
 @group(0) @binding(1) var<storage, read> tris: array<Tri2D>;          // [M]
 @group(0) @binding(2) var<storage, read> pixel_rects: array<vec4<i32>>; // [M]
 @group(0) @binding(3) var<storage, read> tri_from_rank: array<u32>;   // [M]
-@group(0) @binding(4) var<storage, read> offsets: array<u32>;         // [M] by rank
-@group(0) @binding(5) var<storage, read_write> pair_tiles: array<u32>; // [P]
-@group(0) @binding(6) var<storage, read_write> pair_tris: array<u32>;  // [P]
+@group(0) @binding(4) var<storage, read> row_offsets: array<u32>;     // [M] by rank
+@group(0) @binding(5) var<storage, read> offsets: array<u32>;         // [R] by item
+@group(0) @binding(6) var<storage, read_write> pair_tiles: array<u32>; // [P]
+@group(0) @binding(7) var<storage, read_write> pair_tris: array<u32>;  // [P]
 
 @compute @workgroup_size(256)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
-    let j = linear_group(wid, nwg) * 256u + li;
-    if (j >= params.num_triangles) {
+    let q = linear_group(wid, nwg) * 256u + li;
+    if (q >= params.num_rows) {
         return;
     }
+    let j = rank_of_item(q, params.num_triangles);
     let t = tri_from_rank[j];
     let rect = pixel_rects[t];
-    if (rect.x > rect.z || rect.y > rect.w) {
-        return;
-    }
     let tri = tris[t];
-    var o = offsets[j];
-    for (var ty = rect.y / i32(TILE); ty <= rect.w / i32(TILE); ty++) {
-        for (var tx = rect.x / i32(TILE); tx <= rect.z / i32(TILE); tx++) {
-            if (tile_overlaps(tri, rect, tx, ty)) {
-                if (o < params.num_pairs) {
-                    pair_tiles[o] = u32(ty) * params.tiles_x + u32(tx);
-                    pair_tris[o] = t;
-                }
-                o++;
+    let ty = rect.y / i32(TILE) + i32(q - row_offsets[j]);
+    var o = offsets[q];
+    for (var tx = rect.x / i32(TILE); tx <= rect.z / i32(TILE); tx++) {
+        if (tile_overlaps(tri, rect, tx, ty)) {
+            if (o < params.num_pairs) {
+                pair_tiles[o] = u32(ty) * params.tiles_x + u32(tx);
+                pair_tris[o] = t;
             }
+            o++;
         }
     }
 }

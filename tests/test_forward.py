@@ -203,3 +203,48 @@ def test_opacity_and_stop_rules(renderer):
     # below 1/255 nothing is drawn
     faint = TriangleModel(pos, tris, sh, np.full(12, 0.0039))
     assert np.all(renderer.forward(faint, cam, 1.0).transmittance == 1.0)
+
+
+def _layers(tri, k, dz, opacity):
+    pos = np.concatenate([tri + [0, 0, dz * i] for i in range(k)])
+    return pos, np.arange(3 * k).reshape(k, 3), np.full(3 * k, opacity)
+
+
+def test_tile_longer_than_one_blend_pass(renderer):
+    """lavapipe ends loops after 65535 iterations per invocation: a tile with more pairs
+    than one blend pass holds (32768) is blended in several passes, state carried over."""
+    cam = look_at_camera(16, 16)
+    s = 4 / cam.fx
+    c = (np.array([3.5, 3.5]) - 8) * s
+    tiny = np.array([[c[0] - 1.5 * s, c[1] + 1.5 * s, 0], [c[0] + 1.5 * s, c[1] + 1.5 * s, 0], [c[0], c[1] - 1.5 * s, 0]])
+    big = np.array([[-6, 4, 0], [6, 4, 0], [0, -8, 0]], float)
+    # 70000 faint triangles on pixel (3, 3) first (it stops after ~2300 of them, in pass 1),
+    # then 100 tile-covering ones behind them, reached by every other pixel in pass 3
+    p1, t1, o1 = _layers(tiny, 70_000, 1e-5, 0.004)
+    p2, t2, o2 = _layers(big + [0, 0, 1.0], 100, 1e-3, 0.1)
+    pos = np.concatenate([p1, p2])
+    tris = np.concatenate([t1, t2 + len(p1)])
+    rng = np.random.default_rng(0)
+    sh = rng.uniform(-1, 1, (len(pos), 1, 3))
+    model = TriangleModel(pos, tris, sh, np.concatenate([o1, o2]))
+    res = renderer.forward(model, cam, 1e-4)
+    ref = reference.render(model, cam, 1e-4)
+    assert res.num_pairs == 70_100
+    assert res.n_evaluated[10, 10] > 70_000           # reached the last pairs, in pass 3
+    ok = ~ref.ambiguous
+    assert ok.mean() > 0.95
+    assert np.abs(res.image - ref.image).max(axis=-1)[ok].max() <= 1e-5
+    assert np.abs(res.transmittance - ref.transmittance)[ok].max() <= 1e-5
+    assert res.n_contrib[3, 3] < 3000                 # stopped in pass 1 and stayed stopped
+
+
+def test_triangle_covering_many_tiles(renderer):
+    """A screen-covering triangle at 3000x2000 meets all 23,500 tiles (binning per tile row)."""
+    cam = look_at_camera(3000, 2000)
+    big = np.array([[-60, 40, 0], [60, 40, 0], [0, -80, 0]], float)
+    pos, tris, op = _layers(big, 3, 0.01, 1.0)
+    model = TriangleModel(pos, tris, np.zeros((9, 1, 3)), op)
+    res = renderer.forward(model, cam, 1.0)
+    assert res.num_pairs == 3 * 188 * 125
+    t = res.transmittance
+    assert t.max() < 0.02 and t.min() > 0

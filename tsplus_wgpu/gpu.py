@@ -224,7 +224,11 @@ class GpuContext:
         return np.frombuffer(data, dtype=dtype).copy()
 
     def wait(self):
-        self.queue.on_submitted_work_done_sync()
+        """Block until all submitted work is done (a 4-byte readback through the queue;
+        wgpu-py 0.32's on_submitted_work_done is broken)."""
+        if not hasattr(self, "_fence"):
+            self._fence = self.buffer(16, "fence")
+        self.queue.read_buffer(self._fence, 0, 4)
 
     # ---------------------------------------------------------------- shaders
     def source(self, stage):

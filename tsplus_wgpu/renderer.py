@@ -10,8 +10,8 @@ import numpy as np
 
 from . import reference
 from .gpu import GpuContext, Profiler
-from .stages import (BinCount, BinEmit, PrefixSum, ProjectTriangles, RadixSort, RasterizeForward,
-                     Scratch, ShToColor, TileRanges)
+from .stages import (BinCount, BinEmit, BinRows, MaxReduce, PrefixSum, ProjectTriangles, RadixSort,
+                     RasterizeForward, Scratch, ShToColor, TileRanges)
 from .types import Camera, TriangleModel
 
 TILE = 16
@@ -105,7 +105,9 @@ class Renderer:
         self.scratch = Scratch(c)
         self.sh_to_color = ShToColor(c)
         self.project = ProjectTriangles(c)
+        self.bin_rows = BinRows(c)
         self.bin_count = BinCount(c)
+        self.max_reduce = MaxReduce(c)
         self.bin_emit = BinEmit(c)
         self.scan = PrefixSum(c, self.scratch)
         self.depth_sort = RadixSort(c, self.scratch, "depth_sort")
@@ -125,7 +127,7 @@ class Renderer:
         ty = (camera.height + TILE - 1) // TILE
         return tx, ty, tx * ty
 
-    def _frame_params(self, model, camera, sigma, background, near, num_pairs):
+    def _frame_params(self, model, camera, sigma, background, near, num_pairs, num_rows=0):
         tx, ty, _ = self._tiles(camera)
         R, t = camera.R, camera.t
         return self.project.uniform(
@@ -135,7 +137,7 @@ class Renderer:
             fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, near=near, sigma=sigma,
             width=camera.width, height=camera.height, tiles_x=tx, tiles_y=ty,
             num_vertices=model.num_vertices, num_triangles=model.num_triangles, sh_k=model.sh_size,
-            num_pairs=num_pairs)
+            num_pairs=num_pairs, num_rows=num_rows)
 
     def upload_model(self, model: TriangleModel):
         """Device buffers of a model (float32 / uint32)."""
@@ -178,54 +180,72 @@ class Renderer:
         if max(tx, ty) > c.limits["max-compute-workgroups-per-dimension"]:
             raise ValueError(f"camera: {w}x{h} needs more tiles per row/column than this device can dispatch")
 
-        host_timing = profile and not c.features.timestamps
+        # Timing: timestamp queries per pass where supported; otherwise each stage is
+        # submitted on its own and timed on the host.
         prof = Profiler(c) if profile and c.features.timestamps else None
+        host_timing = profile and prof is None
         times = {}
-        t_start = time.perf_counter()
+        state = {"enc": c.device.create_command_encoder(), "t": time.perf_counter()}
 
-        def submit(enc, label):
-            c.queue.submit([enc.finish()])
+        def flush(label, force=False):
+            if not (host_timing or force):
+                return
+            c.queue.submit([state["enc"].finish()])
+            state["enc"] = c.device.create_command_encoder()
             if host_timing:
                 c.wait()
                 now = time.perf_counter()
-                times[label] = times.get(label, 0.0) + (now - submit.t) * 1e3
-                submit.t = now
-        submit.t = t_start
+                times[label] = times.get(label, 0.0) + (now - state["t"]) * 1e3
+                state["t"] = now
+
+        def read_u32(buf):
+            return int(c.read(buf, np.uint32, 1)[0])
 
         dev = self.upload_model(model)
-        params = self._frame_params(model, camera, sigma, bg, near, 0)
+        params = self._frame_params(model, camera, sigma, bg, near, 0, 0)
         b = dict(
             colors=c.buffer(16 * n, "colors"),
             tris=c.buffer(4 * TRI2D_FLOATS * m, "tris"),
             pixel_rects=c.buffer(16 * m, "pixel_rects"),
             depth_keys=c.buffer(4 * m, "depth_keys"),
             tri_ids=c.buffer(4 * m, "tri_ids"),
-            counts=c.buffer(4 * m, "counts"),
+            row_offsets=c.buffer(4 * m, "row_offsets"),
+            tile_counts=c.buffer(4 * ntiles, "tile_counts"),
+            max_tile_pairs=c.buffer(16, "max_tile_pairs"),
         )
         if host_timing:
             c.wait()
-            submit.t = time.perf_counter()
-        stage_encoders = host_timing  # one submission per stage only when host-timing
+            state["t"] = time.perf_counter()
 
-        enc = c.device.create_command_encoder()
-        self.sh_to_color(enc, params, dev["positions"], dev["sh"], b["colors"], n, prof)
-        if stage_encoders:
-            submit(enc, "sh_to_color"); enc = c.device.create_command_encoder()
-        self.project(enc, params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"], b["tris"],
-                     b["pixel_rects"], b["depth_keys"], b["tri_ids"], m, prof)
-        if stage_encoders:
-            submit(enc, "project_triangles"); enc = c.device.create_command_encoder()
-        _, order = self.depth_sort.record(enc, b["depth_keys"], b["tri_ids"], m, 32, prof)
-        if stage_encoders:
-            submit(enc, "depth_sort"); enc = c.device.create_command_encoder()
+        # 1. colours, projection, depth order, tile rows per triangle
+        self.sh_to_color(state["enc"], params, dev["positions"], dev["sh"], b["colors"], n, prof)
+        flush("sh_to_color")
+        self.project(state["enc"], params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"],
+                     b["tris"], b["pixel_rects"], b["depth_keys"], b["tri_ids"], m, prof)
+        flush("project_triangles")
+        keys, order = self.depth_sort.record(state["enc"], b["depth_keys"], b["tri_ids"], m, 32, prof)
+        assert order is b["tri_ids"]   # 8 passes: the result lands back in the input buffers
         b["tri_from_rank"] = order
-        self.bin_count(enc, params, b["tris"], b["pixel_rects"], order, b["counts"], m, prof)
-        total_buf = self.scan.record(enc, b["counts"], m, profiler=prof, label="bin_count")
-        submit(enc, "bin_count")
-        num_pairs = int(c.read(total_buf, np.uint32, 1)[0])   # sizes the pair buffers
+        flush("depth_sort")
+        self.bin_rows(state["enc"], params, b["pixel_rects"], order, b["row_offsets"], m, prof)
+        rows_total = self.scan.record(state["enc"], b["row_offsets"], m, profiler=prof, label="bin_rows")
+        flush("bin_rows", force=True)
+        num_rows = read_u32(rows_total)                # sizes the (triangle, tile row) items
+
+        # 2. count the pairs of every item, and per tile
+        params = self._frame_params(model, camera, sigma, bg, near, 0, num_rows)
+        b["counts"] = c.buffer(4 * num_rows, "counts")
+        self.bin_count(state["enc"], params, b["tris"], b["pixel_rects"], order, b["row_offsets"], b["counts"],
+                       b["tile_counts"], num_rows, prof)
+        pairs_total = self.scan.record(state["enc"], b["counts"], num_rows, profiler=prof, label="bin_count")
+        self.max_reduce(state["enc"], b["tile_counts"], b["max_tile_pairs"], ntiles, prof, "bin_count")
+        flush("bin_count", force=True)
+        num_pairs = read_u32(pairs_total)              # sizes the pair buffers
+        max_tile_pairs = read_u32(b["max_tile_pairs"])  # blend passes
         c.check_size("tile-triangle pairs (image size x triangles)", 4 * num_pairs)
 
-        params = self._frame_params(model, camera, sigma, bg, near, num_pairs)
+        # 3. write the pairs, sort them by tile (stable: depth order within a tile), blend
+        params = self._frame_params(model, camera, sigma, bg, near, num_pairs, num_rows)
         b["pair_tiles"] = c.buffer(4 * num_pairs, "pair_tiles")
         b["pair_tris"] = c.buffer(4 * num_pairs, "pair_tris")
         b["ranges"] = c.buffer(8 * ntiles, "ranges")
@@ -233,25 +253,20 @@ class Renderer:
         b["final_t"] = c.buffer(4 * h * w, "final_t")
         b["n_contrib"] = c.buffer(8 * h * w, "n_contrib")
         b["max_weight"] = c.buffer(4 * m, "max_weight")
-        enc = c.device.create_command_encoder()
-        self.bin_emit(enc, params, b["tris"], b["pixel_rects"], order, b["counts"], b["pair_tiles"],
-                      b["pair_tris"], m, prof)
-        if stage_encoders:
-            submit(enc, "bin_emit"); enc = c.device.create_command_encoder()
+        self.bin_emit(state["enc"], params, b["tris"], b["pixel_rects"], order, b["row_offsets"], b["counts"],
+                      b["pair_tiles"], b["pair_tris"], num_rows, prof)
+        flush("bin_emit")
         tile_bits = max(1, int(ntiles - 1).bit_length())
-        keys, vals = self.tile_sort.record(enc, b["pair_tiles"], b["pair_tris"], num_pairs, tile_bits, prof)
+        keys, vals = self.tile_sort.record(state["enc"], b["pair_tiles"], b["pair_tris"], num_pairs, tile_bits, prof)
         if keys is not b["pair_tiles"]:
-            enc.copy_buffer_to_buffer(keys, 0, b["pair_tiles"], 0, 4 * max(num_pairs, 1))
-            enc.copy_buffer_to_buffer(vals, 0, b["pair_tris"], 0, 4 * max(num_pairs, 1))
-        if stage_encoders:
-            submit(enc, "tile_sort"); enc = c.device.create_command_encoder()
-        self.tile_ranges(enc, b["pair_tiles"], b["ranges"], num_pairs, prof)
-        if stage_encoders:
-            submit(enc, "tile_ranges"); enc = c.device.create_command_encoder()
-        self.blend(enc, params, b["ranges"], b["pair_tris"], b["tris"], b["image"], b["final_t"], b["n_contrib"],
-                   b["max_weight"], tx, ty, prof)
-        submit(enc, "rasterize_forward")
-        b["tri_from_rank"] = order
+            state["enc"].copy_buffer_to_buffer(keys, 0, b["pair_tiles"], 0, 4 * max(num_pairs, 1))
+            state["enc"].copy_buffer_to_buffer(vals, 0, b["pair_tris"], 0, 4 * max(num_pairs, 1))
+        flush("tile_sort")
+        self.tile_ranges(state["enc"], b["pair_tiles"], b["ranges"], num_pairs, prof)
+        flush("tile_ranges")
+        self.blend(state["enc"], params, b["ranges"], b["pair_tris"], b["tris"], b["image"], b["final_t"],
+                   b["n_contrib"], b["max_weight"], tx, ty, max_tile_pairs, prof)
+        flush("rasterize_forward", force=True)
         if prof is not None:
             times = prof.resolve()
         return ForwardResult(self, camera, model, sigma, tuple(bg), near, b, num_pairs, times)

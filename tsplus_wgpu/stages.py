@@ -13,6 +13,9 @@ from .gpu import GpuContext, Stage
 SCAN_BLOCK = 1024
 SORT_BLOCK = 2048
 SORT_BITS_PER_PASS = 4
+#: Pairs per tile that one blend dispatch handles at most: lavapipe ends loops after
+#: 65535 iterations per invocation, and the blend spends about 1 + 1/128 per pair.
+BLEND_PASS_PAIRS = 256 * 128
 
 
 def _groups(n, per):
@@ -38,23 +41,43 @@ class ProjectTriangles(Stage):
                            tri_ids=tri_ids), profiler)
 
 
+class BinRows(Stage):
+    stage = "bin_rows"
+
+    def __call__(self, enc, params, pixel_rects, tri_from_rank, rows, num_triangles, profiler=None):
+        self.dispatch(enc, _groups(num_triangles, 256),
+                      dict(params=params, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank, rows=rows),
+                      profiler)
+
+
 class BinCount(Stage):
     stage = "bin_count"
 
-    def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, counts, num_triangles, profiler=None):
-        self.dispatch(enc, _groups(num_triangles, 256),
+    def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, row_offsets, counts, tile_counts, num_rows,
+                 profiler=None):
+        enc.clear_buffer(tile_counts)
+        self.dispatch(enc, _groups(num_rows, 256),
                       dict(params=params, tris=tris, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank,
-                           counts=counts), profiler)
+                           row_offsets=row_offsets, counts=counts, tile_counts=tile_counts), profiler)
 
 
 class BinEmit(Stage):
     stage = "bin_emit"
 
-    def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, offsets, pair_tiles, pair_tris,
-                 num_triangles, profiler=None):
-        self.dispatch(enc, _groups(num_triangles, 256),
+    def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, row_offsets, offsets, pair_tiles, pair_tris,
+                 num_rows, profiler=None):
+        self.dispatch(enc, _groups(num_rows, 256),
                       dict(params=params, tris=tris, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank,
-                           offsets=offsets, pair_tiles=pair_tiles, pair_tris=pair_tris), profiler)
+                           row_offsets=row_offsets, offsets=offsets, pair_tiles=pair_tiles, pair_tris=pair_tris),
+                      profiler)
+
+
+class MaxReduce(Stage):
+    stage = "max_reduce"
+
+    def __call__(self, enc, values, result, n, profiler=None, label=None):
+        rp = self.uniform("ReduceParams", n=n)
+        self.dispatch(enc, 1, dict(rp=rp, values=values, result=result), profiler, label)
 
 
 class TileRanges(Stage):
@@ -70,11 +93,16 @@ class RasterizeForward(Stage):
     stage = "rasterize_forward"
 
     def __call__(self, enc, params, ranges, pair_tris, tris, image, final_t, n_contrib, max_weight,
-                 tiles_x, tiles_y, profiler=None):
+                 tiles_x, tiles_y, max_tile_pairs, profiler=None):
+        """Blends in ceil(max_tile_pairs / BLEND_PASS_PAIRS) dispatches (one in practice)."""
         enc.clear_buffer(max_weight)
-        self.dispatch(enc, (tiles_x, tiles_y, 1),
-                      dict(params=params, ranges=ranges, pair_tris=pair_tris, tris=tris, image=image,
-                           final_t=final_t, n_contrib=n_contrib, max_weight=max_weight), profiler)
+        passes = max(1, -(-int(max_tile_pairs) // BLEND_PASS_PAIRS))
+        for i in range(passes):
+            bp = self.uniform("BlendPass", begin=i * BLEND_PASS_PAIRS, end=(i + 1) * BLEND_PASS_PAIRS,
+                              first=int(i == 0), last=int(i == passes - 1))
+            self.dispatch(enc, (tiles_x, tiles_y, 1),
+                          dict(params=params, ranges=ranges, pair_tris=pair_tris, tris=tris, image=image,
+                               final_t=final_t, n_contrib=n_contrib, max_weight=max_weight, pass_=bp), profiler)
 
 
 class ScanBlock(Stage):
@@ -196,5 +224,5 @@ def scan_numpy(ctx: GpuContext, values):
     return ctx.read(buf, np.uint32, n), int(ctx.read(total, np.uint32, 1)[0])
 
 
-__all__ = ["ShToColor", "ProjectTriangles", "BinCount", "BinEmit", "TileRanges", "RasterizeForward",
+__all__ = ["ShToColor", "ProjectTriangles", "BinRows", "BinCount", "BinEmit", "MaxReduce", "BLEND_PASS_PAIRS", "TileRanges", "RasterizeForward",
            "PrefixSum", "RadixSort", "Scratch", "PeakFma", "scan_numpy", "wgpu"]

@@ -20,7 +20,7 @@ struct FrameParams {
     num_triangles: u32,
     sh_k: u32,
     num_pairs: u32,
-    _pad0: u32,
+    num_rows: u32,      // (triangle, tile row) work items of binning
     _pad1: u32,
 }
 
@@ -33,6 +33,11 @@ const T_MIN: f32 = 0.0001;                      // stop before T would fall belo
 const MIN_THINNESS: f32 = 1e-6;
 // Conservative margin of the tile-overlap test, in units of the window ratio.
 const BIN_MARGIN: f32 = 1e-5;
+
+// lavapipe (Mesa's llvmpipe) ends every loop after 65535 iterations in total per
+// invocation, silently. Every kernel bounds its per-invocation work well below that:
+// binning works per (triangle, tile row), the blend runs in passes of at most
+// 32768 pairs per tile (tsplus_wgpu.stages.BLEND_PASS_PAIRS).
 
 fn world_to_camera(p: FrameParams, x: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(dot(p.rot0.xyz, x) + p.rot0.w,

@@ -24,16 +24,15 @@ struct Tri2D {
 // edge normals. Used by both the counting and the writing pass of binning.
 fn rect_overlaps(t: Tri2D, lo: vec2<f32>, hi: vec2<f32>) -> bool {
     let thr = t.tau - BIN_MARGIN;
-    var gs = array<vec2<f32>, 3>(t.g0, t.g1, t.g2);
-    for (var k = 0u; k < 3u; k++) {
-        let g = gs[k];
-        let corner = vec2<f32>(select(lo.x, hi.x, g.x > 0.0), select(lo.y, hi.y, g.y > 0.0));
-        let e = 1.0 + dot(g, corner - t.s);
-        if (e < thr) {
-            return false;
-        }
-    }
-    return true;
+    // (unrolled: no loop, see the loop budget note in frame.wgsl)
+    return edge_reaches(t.g0, t.s, lo, hi, thr) && edge_reaches(t.g1, t.s, lo, hi, thr)
+        && edge_reaches(t.g2, t.s, lo, hi, thr);
+}
+
+// Largest e = 1 + g.(p - s) over the rectangle [lo, hi] (at the corner g points to) >= thr?
+fn edge_reaches(g: vec2<f32>, s: vec2<f32>, lo: vec2<f32>, hi: vec2<f32>, thr: f32) -> bool {
+    let corner = vec2<f32>(select(lo.x, hi.x, g.x > 0.0), select(lo.y, hi.y, g.y > 0.0));
+    return 1.0 + dot(g, corner - s) >= thr;
 }
 
 // Rectangle of pixel centres shared by tile (tx, ty) and the triangle's pixel box
