@@ -305,3 +305,4 @@ def projection_from_records(records, rects):
     return Projection(visible=visible, verts2d=None, s=f("s"), g=g, lengths=None, inradius=f("inradius"),
                       opacity=f("opacity"), tau=f("tau"), depth=f("depth"), vcolors=None, rect=rects,
                       color=f("color")[:, :3], dcolor_dx=f("dcolor_dx")[:, :3], dcolor_dy=f("dcolor_dy")[:, :3])
+from .reference_backward import backward  # noqa: E402,F401  (float64 analytic backward)
