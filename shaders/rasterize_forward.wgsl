@@ -1,15 +1,17 @@
-// Forward blend: one workgroup per 16x16 tile, one invocation per pixel. Triangles of
-// the tile arrive in depth order in batches of 128 staged in workgroup memory.
+// Forward blend: one workgroup of 32 invocations per 16x16 tile; each invocation blends
+// 8 pixels of one column, as two groups of 4 held in the lanes of vec4s (so every
+// triangle record read from workgroup memory serves 8 pixels). Triangles of the tile arrive in depth order in
+// batches of 128 staged in workgroup memory.
 //   I = max(0, min_k e_k(p))^sigma, alpha = min(0.99, o I), skip alpha < 1/255,
 //   stop before T would fall below 1e-4; C += c(p) alpha T; T *= 1 - alpha.
 // Outputs the image (C + T background), final T, per pixel (x) the number of pairs of
 // its tile up to and including the last one that contributed (for the backward pass)
 // and (y) the number of pairs it evaluated, and per triangle the largest alpha * T.
 //
-// A tile with more than BLEND_PASS_BATCHES * 128 pairs is blended in several dispatches
-// (lavapipe's loop budget, see frame.wgsl); between them the pixel state lives in the
-// output buffers: C (without background) in image, T in final_t, (last, evaluated) in
-// n_contrib with the "stopped" flag in bit 31 of y.
+// A tile with more than 32768 pairs is blended in several dispatches (lavapipe's loop
+// budget, see frame.wgsl); between them the pixel state lives in the output buffers:
+// C (without background) in image, T in final_t, (last, evaluated) in n_contrib with
+// the "stopped" flag in bit 31 of y.
 #import frame
 #import triangle
 
@@ -29,9 +31,14 @@ struct BlendPass {
 @group(0) @binding(6) var<storage, read_write> n_contrib: array<vec2<u32>>;  // [H, W]
 @group(0) @binding(7) var<storage, read_write> max_weight: array<atomic<u32>>;  // [M] f32 bits
 @group(0) @binding(8) var<uniform> pass_: BlendPass;
+// Work done, for the benchmark's FLOP count: [0] evaluations that reached the power
+// (ratio >= tau), [1] contributions.
+@group(0) @binding(9) var<storage, read_write> work: array<atomic<u32>>;  // [2]
 
 const BATCH: u32 = 128u;
 const STOPPED: u32 = 0x80000000u;
+const GROUPS: u32 = 2u;                   // vec4 pixel groups per invocation
+const THREADS: u32 = 32u;                 // 16 columns x 2 (each: 8 rows = 2 groups of 4)
 
 var<workgroup> batch_tris: array<Tri2D, 128>;
 var<workgroup> batch_ids: array<u32, 128>;
@@ -39,38 +46,112 @@ var<workgroup> batch_maxw: array<atomic<u32>, 128>;
 var<workgroup> num_done: atomic<u32>;
 var<workgroup> num_done_seen: u32;
 
-@compute @workgroup_size(16, 16)
-fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
-        @builtin(local_invocation_index) li: u32) {
-    let px = wid.x * TILE + lid.x;
-    let py = wid.y * TILE + lid.y;
-    let inside = px < params.width && py < params.height;
-    let pix = py * params.width + px;
+// Four pixels of one column, blended together in the lanes of vec4s.
+struct Px4 {
+    y: vec4<f32>,
+    T: vec4<f32>,
+    cr: vec4<f32>,
+    cg: vec4<f32>,
+    cb: vec4<f32>,
+    last: vec4<u32>,
+    evaluated: vec4<u32>,
+    done: vec4<bool>,
+    powered: vec4<u32>,
+    added: vec4<u32>,
+}
+
+// The part of a staged record every evaluation needs; the rest (opacity, colour) is read
+// from workgroup memory only where a pixel is inside the triangle.
+struct Window {
+    s: vec2<f32>,
+    g0: vec2<f32>,
+    g1: vec2<f32>,
+    g2: vec2<f32>,
+    tau: f32,
+}
+
+// Blend staged triangle j into four pixels; returns the largest weight given.
+fn blend4(q: ptr<function, Px4>, t: Window, j: u32, dx: f32, sigma: f32, index: u32) -> f32 {
+    let live_in = !(*q).done;
+    if (!any(live_in)) {
+        return 0.0;
+    }
+    (*q).evaluated += select(vec4<u32>(0u), vec4<u32>(1u), live_in);
+    let dy = (*q).y - t.s.y;
+    let ratio = min(min(1.0 + t.g0.x * dx + t.g0.y * dy, 1.0 + t.g1.x * dx + t.g1.y * dy),
+                    1.0 + t.g2.x * dx + t.g2.y * dy);
+    // ratio < tau means alpha < 1/255: no power needed
+    let live = live_in & (ratio > vec4<f32>(0.0)) & (ratio >= vec4<f32>(t.tau));
+    if (!any(live)) {
+        return 0.0;
+    }
+    (*q).powered += select(vec4<u32>(0u), vec4<u32>(1u), live);
+    let alpha = min(vec4<f32>(ALPHA_MAX),
+                    batch_tris[j].opacity * exp2(sigma * log2(max(ratio, vec4<f32>(1e-30)))));
+    let valid = live & (alpha >= vec4<f32>(ALPHA_MIN));
+    let next_t = (*q).T * (1.0 - alpha);
+    let stop = valid & (next_t < vec4<f32>(T_MIN));
+    let add = valid & !stop;
+    let w = select(vec4<f32>(0.0), alpha * (*q).T, add);
+    (*q).added += select(vec4<u32>(0u), vec4<u32>(1u), add);
+    let c0 = batch_tris[j].color;
+    let cx = batch_tris[j].dcolor_dx;
+    let cy = batch_tris[j].dcolor_dy;
+    (*q).cr += (c0.x + cx.x * dx + cy.x * dy) * w;
+    (*q).cg += (c0.y + cx.y * dx + cy.y * dy) * w;
+    (*q).cb += (c0.z + cx.z * dx + cy.z * dy) * w;
+    (*q).T = select((*q).T, next_t, add);
+    (*q).last = select((*q).last, vec4<u32>(index), add);
+    if (any(stop)) {
+        (*q).done = (*q).done | stop;
+        atomicAdd(&num_done, dot(select(vec4<u32>(0u), vec4<u32>(1u), stop), vec4<u32>(1u)));
+    }
+    return max(max(w.x, w.y), max(w.z, w.w));
+}
+
+@compute @workgroup_size(32)
+fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    let px = wid.x * TILE + li % TILE;
+    let row0 = wid.y * TILE + (li / TILE) * 4u * GROUPS;
     let tile = wid.y * params.tiles_x + wid.x;
     let range = ranges[tile];
-    let p = vec2<f32>(f32(px) + 0.5, f32(py) + 0.5);
+    let x = f32(px) + 0.5;
     let sigma = params.sigma;
 
-    var T = 1.0;
-    var C = vec3<f32>(0.0);
-    var last = 0u;
-    var evaluated = 0u;
-    var done = !inside;
-    if (pass_.first == 0u && inside) {
-        C = vec3<f32>(image[3u * pix], image[3u * pix + 1u], image[3u * pix + 2u]);
-        T = final_t[pix];
-        let st = n_contrib[pix];
-        last = st.x;
-        evaluated = st.y & ~STOPPED;
-        done = (st.y & STOPPED) != 0u;
+    var q: array<Px4, 2>;
+    var ndone = 0u;
+    for (var g = 0u; g < GROUPS; g++) {
+        let py = vec4<u32>(row0 + 4u * g) + vec4<u32>(0u, 1u, 2u, 3u);
+        let inside = (py < vec4<u32>(params.height)) & vec4<bool>(px < params.width);
+        q[g].y = vec4<f32>(py) + 0.5;
+        q[g].T = vec4<f32>(1.0);
+        q[g].done = !inside;
+        if (pass_.first == 0u) {
+            for (var k = 0u; k < 4u; k++) {
+                if (inside[k]) {
+                    let pix = py[k] * params.width + px;
+                    q[g].cr[k] = image[3u * pix];
+                    q[g].cg[k] = image[3u * pix + 1u];
+                    q[g].cb[k] = image[3u * pix + 2u];
+                    q[g].T[k] = final_t[pix];
+                    let st = n_contrib[pix];
+                    q[g].last[k] = st.x;
+                    q[g].evaluated[k] = st.y & ~STOPPED;
+                    q[g].done[k] = (st.y & STOPPED) != 0u;
+                }
+            }
+        }
+        ndone += dot(select(vec4<u32>(0u), vec4<u32>(1u), q[g].done), vec4<u32>(1u));
     }
     if (li == 0u) {
         atomicStore(&num_done, 0u);
     }
     workgroupBarrier();
-    if (done) {
-        atomicAdd(&num_done, 1u);
+    if (ndone != 0u) {
+        atomicAdd(&num_done, ndone);
     }
+    var q0 = q[0];
+    var q1 = q[1];
     let lo = min(range.x + pass_.begin, range.y);
     let hi = min(range.x + pass_.end, range.y);
     let num_batches = (hi - lo + BATCH - 1u) / BATCH;
@@ -78,67 +159,60 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         if (li == 0u) {
             num_done_seen = atomicLoad(&num_done);
         }
-        if (workgroupUniformLoad(&num_done_seen) == 256u) {
+        if (workgroupUniformLoad(&num_done_seen) == TILE * TILE) {
             break;
         }
         let first = lo + b * BATCH;
         let count = min(BATCH, hi - first);
-        if (li < count) {
-            let id = pair_tris[first + li];
-            batch_ids[li] = id;
-            batch_tris[li] = tris[id];
-            atomicStore(&batch_maxw[li], 0u);
+        for (var h = li; h < count; h += THREADS) {
+            let id = pair_tris[first + h];
+            batch_ids[h] = id;
+            batch_tris[h] = tris[id];
+            atomicStore(&batch_maxw[h], 0u);
         }
         workgroupBarrier();
-        // Structured loop with a uniform trip count and no break/continue, so that j
-        // stays uniform and the staged records are read once per SIMD group.
+        // Uniform trip count, no break/continue: j stays uniform across the workgroup.
         for (var j = 0u; j < count; j++) {
-            if (!done) {
-                evaluated++;
-                let d = p - batch_tris[j].s;
-                let ratio = min(min(1.0 + dot(batch_tris[j].g0, d), 1.0 + dot(batch_tris[j].g1, d)),
-                                1.0 + dot(batch_tris[j].g2, d));
-                // ratio < tau means alpha < 1/255: skip without evaluating the power
-                if (ratio > 0.0 && ratio >= batch_tris[j].tau) {
-                    let alpha = min(ALPHA_MAX, batch_tris[j].opacity * exp2(sigma * log2(ratio)));
-                    if (alpha >= ALPHA_MIN) {
-                        let next_t = T * (1.0 - alpha);
-                        if (next_t < T_MIN) {
-                            done = true;
-                            atomicAdd(&num_done, 1u);
-                        } else {
-                            let c = batch_tris[j].color.xyz + batch_tris[j].dcolor_dx.xyz * d.x
-                                    + batch_tris[j].dcolor_dy.xyz * d.y;
-                            let w = alpha * T;
-                            C += c * w;
-                            atomicMax(&batch_maxw[j], bitcast<u32>(w));
-                            T = next_t;
-                            last = first - range.x + j + 1u;
-                        }
-                    }
-                }
+            let t = Window(batch_tris[j].s, batch_tris[j].g0, batch_tris[j].g1, batch_tris[j].g2,
+                           batch_tris[j].tau);
+            let dx = x - t.s.x;
+            let index = first - range.x + j + 1u;
+            let wmax = max(blend4(&q0, t, j, dx, sigma, index), blend4(&q1, t, j, dx, sigma, index));
+            if (wmax > 0.0) {
+                atomicMax(&batch_maxw[j], bitcast<u32>(wmax));
             }
         }
         workgroupBarrier();
-        if (li < count) {
-            let w = atomicLoad(&batch_maxw[li]);
+        for (var h = li; h < count; h += THREADS) {
+            let w = atomicLoad(&batch_maxw[h]);
             if (w != 0u) {
-                atomicMax(&max_weight[batch_ids[li]], w);
+                atomicMax(&max_weight[batch_ids[h]], w);
             }
         }
     }
-    if (inside) {
-        var out = C;
-        var flags = 0u;
-        if (pass_.last != 0u) {
-            out += T * params.background.xyz;
-        } else if (done) {
-            flags = STOPPED;
+    q[0] = q0;
+    q[1] = q1;
+    let one = vec4<u32>(1u);
+    atomicAdd(&work[0], dot(q0.powered + q1.powered, one));
+    atomicAdd(&work[1], dot(q0.added + q1.added, one));
+    for (var g = 0u; g < GROUPS; g++) {
+        for (var k = 0u; k < 4u; k++) {
+            let py = row0 + 4u * g + k;
+            if (py < params.height && px < params.width) {
+                let pix = py * params.width + px;
+                var out = vec3<f32>(q[g].cr[k], q[g].cg[k], q[g].cb[k]);
+                var flags = 0u;
+                if (pass_.last != 0u) {
+                    out += q[g].T[k] * params.background.xyz;
+                } else if (q[g].done[k]) {
+                    flags = STOPPED;
+                }
+                image[3u * pix] = out.x;
+                image[3u * pix + 1u] = out.y;
+                image[3u * pix + 2u] = out.z;
+                final_t[pix] = q[g].T[k];
+                n_contrib[pix] = vec2<u32>(q[g].last[k], q[g].evaluated[k] | flags);
+            }
         }
-        image[3u * pix] = out.x;
-        image[3u * pix + 1u] = out.y;
-        image[3u * pix + 2u] = out.z;
-        final_t[pix] = T;
-        n_contrib[pix] = vec2<u32>(last, evaluated | flags);
     }
 }

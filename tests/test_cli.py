@@ -44,7 +44,8 @@ def test_bench_raster_writes_finite_report(tmp_path, capsys):
     assert [r["triangles"] for r in rep["rows"]] == [500, 2000]
     for r in rep["rows"]:
         assert "rasterize_forward" in r["stage_ms_median"]
-        for v in (r["gpu_ms_median"], r["triangles_per_s"], r["evals_per_s"], r["max_abs_error_vs_twin"]):
+        for v in (r["gpu_ms_median"], r["triangles_per_s"], r["evals_per_s"], r["blend_flops_per_s"],
+                  r["max_abs_error_vs_twin"]):
             assert math.isfinite(v)
         assert r["max_abs_error_vs_twin"] < 1e-3
 

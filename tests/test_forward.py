@@ -106,6 +106,9 @@ def test_blend_matches_twin_on_kernel_inputs(case):
     assert err[ok].max() <= 1e-5, err[ok].max()
     assert np.abs(res.transmittance - ref.transmittance)[ok].max() <= 1e-5
     np.testing.assert_allclose(res.max_weight, ref.max_weight, atol=1e-5)
+    # the work counters the benchmark's FLOP count uses
+    assert abs(res.work["contributions"] - int(ref.n_contrib.sum())) <= int(ref.ambiguous.sum())
+    assert res.work["evaluations"] >= res.work["powered"] >= res.work["contributions"] > 0
     # the kernel's per-pixel "last contributing pair" covers every contribution the twin counts
     assert np.all(res.n_contrib[ok] >= ref.n_contrib[ok])
     assert np.all(res.n_evaluated >= res.n_contrib)

@@ -64,6 +64,14 @@ class ForwardResult:
         h, w = self.camera.height, self.camera.width
         return self._read("n_contrib", np.uint32, 2 * h * w).reshape(h, w, 2)[..., 1]
 
+    @property
+    def work(self):
+        """Blend work for FLOP accounting: dict of pair evaluations, of those that reached
+        the window's power (ratio >= tau), and of contributions."""
+        w = self._read("work", np.uint32, 2)
+        return {"evaluations": int(self.n_evaluated.astype(np.int64).sum()), "powered": int(w[0]),
+                "contributions": int(w[1])}
+
     # Intermediate stages, for tests and tools.
     def projected(self):
         """Tri2D records as a structured array [M] and the pixel boxes [M, 4]."""
@@ -253,6 +261,7 @@ class Renderer:
         b["final_t"] = c.buffer(4 * h * w, "final_t")
         b["n_contrib"] = c.buffer(8 * h * w, "n_contrib")
         b["max_weight"] = c.buffer(4 * m, "max_weight")
+        b["work"] = c.buffer(16, "work")
         self.bin_emit(state["enc"], params, b["tris"], b["pixel_rects"], order, b["row_offsets"], b["counts"],
                       b["pair_tiles"], b["pair_tris"], num_rows, prof)
         flush("bin_emit")
@@ -265,7 +274,7 @@ class Renderer:
         self.tile_ranges(state["enc"], b["pair_tiles"], b["ranges"], num_pairs, prof)
         flush("tile_ranges")
         self.blend(state["enc"], params, b["ranges"], b["pair_tris"], b["tris"], b["image"], b["final_t"],
-                   b["n_contrib"], b["max_weight"], tx, ty, max_tile_pairs, prof)
+                   b["n_contrib"], b["max_weight"], b["work"], tx, ty, max_tile_pairs, prof)
         flush("rasterize_forward", force=True)
         if prof is not None:
             times = prof.resolve()

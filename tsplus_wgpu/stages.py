@@ -92,17 +92,19 @@ class TileRanges(Stage):
 class RasterizeForward(Stage):
     stage = "rasterize_forward"
 
-    def __call__(self, enc, params, ranges, pair_tris, tris, image, final_t, n_contrib, max_weight,
+    def __call__(self, enc, params, ranges, pair_tris, tris, image, final_t, n_contrib, max_weight, work,
                  tiles_x, tiles_y, max_tile_pairs, profiler=None):
         """Blends in ceil(max_tile_pairs / BLEND_PASS_PAIRS) dispatches (one in practice)."""
         enc.clear_buffer(max_weight)
+        enc.clear_buffer(work)
         passes = max(1, -(-int(max_tile_pairs) // BLEND_PASS_PAIRS))
         for i in range(passes):
             bp = self.uniform("BlendPass", begin=i * BLEND_PASS_PAIRS, end=(i + 1) * BLEND_PASS_PAIRS,
                               first=int(i == 0), last=int(i == passes - 1))
             self.dispatch(enc, (tiles_x, tiles_y, 1),
                           dict(params=params, ranges=ranges, pair_tris=pair_tris, tris=tris, image=image,
-                               final_t=final_t, n_contrib=n_contrib, max_weight=max_weight, pass_=bp), profiler)
+                               final_t=final_t, n_contrib=n_contrib, max_weight=max_weight, pass_=bp,
+                               work=work), profiler)
 
 
 class ScanBlock(Stage):
