@@ -194,3 +194,27 @@ def test_too_many_pairs_is_a_clear_error(renderer):
     model = TriangleModel(pos, np.arange(3 * k).reshape(k, 3), np.zeros((3 * k, 1, 3)), np.ones(3 * k))
     with pytest.raises(ValueError, match="tile-triangle pairs"):
         renderer.forward(model, cam, 1.0)
+
+
+def test_no_reliance_on_zeroed_memory():
+    """Every scratch and output buffer filled with 0xFF: same image, bit for bit."""
+    from tsplus_wgpu import Renderer
+    poisoned = Renderer(gpu.GpuContext(poison=True))
+    clean = Renderer(gpu.GpuContext(poison=False))
+    model, cam = random_scene(4, 96, 80)
+    a = poisoned.forward(model, cam, 0.5, background=(0.1, 0.2, 0.3))
+    b = clean.forward(model, cam, 0.5, background=(0.1, 0.2, 0.3))
+    assert np.isfinite(a.image).all()
+    assert a.image.tobytes() == b.image.tobytes()
+    assert a.max_weight.tobytes() == b.max_weight.tobytes()
+    assert a.transmittance.tobytes() == b.transmittance.tobytes()
+    ga = poisoned.backward(a, np.ones_like(a.image))
+    gb = clean.backward(b, np.ones_like(b.image))
+    assert ga.v_positions.tobytes() == gb.v_positions.tobytes()
+    assert ga.v_sh.tobytes() == gb.v_sh.tobytes() and ga.v_opacity.tobytes() == gb.v_opacity.tobytes()
+
+
+def test_no_adapter_message(monkeypatch):
+    monkeypatch.setattr(gpu, "list_adapters", lambda *a, **k: [])
+    with pytest.raises(gpu.NoAdapterError, match="apt-get install -y mesa-vulkan-drivers"):
+        gpu.select_adapter()

@@ -135,9 +135,13 @@ class GpuContext:
         adapter: an adapter, a name to match (see :func:`select_adapter`) or None.
         limits: larger limits to request, e.g. ``{"max-buffer-size": 2**30}``; each is
             checked against the adapter and refused with a ValueError when unavailable.
+        poison: fill every new scratch/output buffer with 0xFF bytes (NaN as float, 2^32-1
+            as u32) to catch kernels that rely on zero-initialised memory; also on with
+            ``TSPLUS_POISON=1``. For tests and debugging.
     """
 
-    def __init__(self, adapter=None, limits=None):
+    def __init__(self, adapter=None, limits=None, poison=None):
+        self.poison = (os.environ.get("TSPLUS_POISON") == "1") if poison is None else bool(poison)
         if adapter is None or isinstance(adapter, str):
             adapter = select_adapter(adapter)
         self.adapter = adapter
@@ -198,7 +202,10 @@ class GpuContext:
             wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST)
         nbytes = max(16, (int(nbytes) + 3) // 4 * 4)  # zero-sized buffers are invalid
         self.check_size(label or "buffer", nbytes)
-        return self.device.create_buffer(size=nbytes, usage=usage, label=label)
+        buf = self.device.create_buffer(size=nbytes, usage=usage, label=label)
+        if self.poison and usage & wgpu.BufferUsage.COPY_DST:
+            self.queue.write_buffer(buf, 0, b"\xff" * nbytes)
+        return buf
 
     def upload(self, array, label="", usage=None):
         arr = np.ascontiguousarray(array)
