@@ -1,6 +1,6 @@
-// Forward blend: one workgroup of 32 invocations per 16x16 tile; each invocation blends
-// 8 pixels of one column, as two groups of 4 held in the lanes of vec4s (so every
-// triangle record read from workgroup memory serves 8 pixels). Triangles of the tile arrive in depth order in
+// Forward blend: one workgroup of 16 invocations per 16x16 tile; each invocation blends
+// the 16 pixels of one column, as four groups of 4 held in the lanes of vec4s, so every
+// triangle record read from workgroup memory serves 16 pixels. Triangles of the tile arrive in depth order in
 // batches of 128 staged in workgroup memory.
 //   I = max(0, min_k e_k(p))^sigma, alpha = min(0.99, o I), skip alpha < 1/255,
 //   stop before T would fall below 1e-4; C += c(p) alpha T; T *= 1 - alpha.
@@ -37,10 +37,13 @@ struct BlendPass {
 
 const BATCH: u32 = 128u;
 const STOPPED: u32 = 0x80000000u;
-const GROUPS: u32 = 2u;                   // vec4 pixel groups per invocation
-const THREADS: u32 = 32u;                 // 16 columns x 2 (each: 8 rows = 2 groups of 4)
+const THREADS: u32 = 16u;          // one invocation per column of the tile: 16 pixels, 4 groups of 4
 
-var<workgroup> batch_tris: array<Tri2D, 128>;
+// The staged records as raw vec4s (6 per triangle, the layout of Tri2D): a load from
+// workgroup memory is costly per instruction on CPU drivers, so each is a whole vec4.
+//   [0] s.x, s.y, opacity, tau   [1] g0, g1   [2] g2, depth, inradius
+//   [3] colour at s              [4] d colour / dx   [5] d colour / dy
+var<workgroup> staged: array<vec4<f32>, 768>;
 var<workgroup> batch_ids: array<u32, 128>;
 var<workgroup> batch_maxw: array<atomic<u32>, 128>;
 var<workgroup> num_done: atomic<u32>;
@@ -60,43 +63,27 @@ struct Px4 {
     added: vec4<u32>,
 }
 
-// The part of a staged record every evaluation needs; the rest (opacity, colour) is read
-// from workgroup memory only where a pixel is inside the triangle.
-struct Window {
-    s: vec2<f32>,
-    g0: vec2<f32>,
-    g1: vec2<f32>,
-    g2: vec2<f32>,
-    tau: f32,
+// Window ratio min_k e_k at four pixels of a column: e_k = a_k + gy_k (y - s.y), with the
+// column's share a_k = 1 + gx_k (x - s.x) computed once per triangle.
+fn ratio4(dy: vec4<f32>, a: vec3<f32>, gy: vec3<f32>) -> vec4<f32> {
+    return min(min(a.x + gy.x * dy, a.y + gy.y * dy), a.z + gy.z * dy);
 }
 
-// Blend staged triangle j into four pixels; returns the largest weight given.
-fn blend4(q: ptr<function, Px4>, t: Window, j: u32, dx: f32, sigma: f32, index: u32) -> f32 {
-    let live_in = !(*q).done;
-    if (!any(live_in)) {
-        return 0.0;
-    }
-    (*q).evaluated += select(vec4<u32>(0u), vec4<u32>(1u), live_in);
-    let dy = (*q).y - t.s.y;
-    let ratio = min(min(1.0 + t.g0.x * dx + t.g0.y * dy, 1.0 + t.g1.x * dx + t.g1.y * dy),
-                    1.0 + t.g2.x * dx + t.g2.y * dy);
-    // ratio < tau means alpha < 1/255: no power needed
-    let live = live_in & (ratio > vec4<f32>(0.0)) & (ratio >= vec4<f32>(t.tau));
+// Blend the staged triangle into the four pixels where live; returns the largest weight.
+fn blend4(q: ptr<function, Px4>, live: vec4<bool>, ratio: vec4<f32>, opacity: f32, c0: vec4<f32>,
+          cx: vec4<f32>, cy: vec4<f32>, dx: f32, sigma: f32, index: u32) -> f32 {
     if (!any(live)) {
         return 0.0;
     }
     (*q).powered += select(vec4<u32>(0u), vec4<u32>(1u), live);
-    let alpha = min(vec4<f32>(ALPHA_MAX),
-                    batch_tris[j].opacity * exp2(sigma * log2(max(ratio, vec4<f32>(1e-30)))));
+    let alpha = min(vec4<f32>(ALPHA_MAX), opacity * exp2(sigma * log2(max(ratio, vec4<f32>(1e-30)))));
     let valid = live & (alpha >= vec4<f32>(ALPHA_MIN));
     let next_t = (*q).T * (1.0 - alpha);
     let stop = valid & (next_t < vec4<f32>(T_MIN));
     let add = valid & !stop;
     let w = select(vec4<f32>(0.0), alpha * (*q).T, add);
     (*q).added += select(vec4<u32>(0u), vec4<u32>(1u), add);
-    let c0 = batch_tris[j].color;
-    let cx = batch_tris[j].dcolor_dx;
-    let cy = batch_tris[j].dcolor_dy;
+    let dy = (*q).y - c0.w;   // c0.w carries s.y (see staging)
     (*q).cr += (c0.x + cx.x * dx + cy.x * dy) * w;
     (*q).cg += (c0.y + cx.y * dx + cy.y * dy) * w;
     (*q).cb += (c0.z + cx.z * dx + cy.z * dy) * w;
@@ -104,23 +91,24 @@ fn blend4(q: ptr<function, Px4>, t: Window, j: u32, dx: f32, sigma: f32, index: 
     (*q).last = select((*q).last, vec4<u32>(index), add);
     if (any(stop)) {
         (*q).done = (*q).done | stop;
+        (*q).evaluated = select((*q).evaluated, vec4<u32>(index), stop);   // pairs visited
         atomicAdd(&num_done, dot(select(vec4<u32>(0u), vec4<u32>(1u), stop), vec4<u32>(1u)));
     }
     return max(max(w.x, w.y), max(w.z, w.w));
 }
 
-@compute @workgroup_size(32)
+@compute @workgroup_size(16)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    let px = wid.x * TILE + li % TILE;
-    let row0 = wid.y * TILE + (li / TILE) * 4u * GROUPS;
+    let px = wid.x * TILE + li;
+    let row0 = wid.y * TILE;
     let tile = wid.y * params.tiles_x + wid.x;
     let range = ranges[tile];
     let x = f32(px) + 0.5;
     let sigma = params.sigma;
 
-    var q: array<Px4, 2>;
+    var q: array<Px4, 4>;
     var ndone = 0u;
-    for (var g = 0u; g < GROUPS; g++) {
+    for (var g = 0u; g < 4u; g++) {
         let py = vec4<u32>(row0 + 4u * g) + vec4<u32>(0u, 1u, 2u, 3u);
         let inside = (py < vec4<u32>(params.height)) & vec4<bool>(px < params.width);
         q[g].y = vec4<f32>(py) + 0.5;
@@ -152,6 +140,8 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     }
     var q0 = q[0];
     var q1 = q[1];
+    var q2 = q[2];
+    var q3 = q[3];
     let lo = min(range.x + pass_.begin, range.y);
     let hi = min(range.x + pass_.end, range.y);
     let num_batches = (hi - lo + BATCH - 1u) / BATCH;
@@ -166,20 +156,48 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         let count = min(BATCH, hi - first);
         for (var h = li; h < count; h += THREADS) {
             let id = pair_tris[first + h];
+            let t = tris[id];
             batch_ids[h] = id;
-            batch_tris[h] = tris[id];
+            staged[6u * h] = vec4<f32>(t.s, t.opacity, t.tau);
+            staged[6u * h + 1u] = vec4<f32>(t.g0, t.g1);
+            staged[6u * h + 2u] = vec4<f32>(t.g2, t.depth, t.inradius);
+            staged[6u * h + 3u] = vec4<f32>(t.color.xyz, t.s.y);
+            staged[6u * h + 4u] = t.dcolor_dx;
+            staged[6u * h + 5u] = t.dcolor_dy;
             atomicStore(&batch_maxw[h], 0u);
         }
         workgroupBarrier();
         // Uniform trip count, no break/continue: j stays uniform across the workgroup.
         for (var j = 0u; j < count; j++) {
-            let t = Window(batch_tris[j].s, batch_tris[j].g0, batch_tris[j].g1, batch_tris[j].g2,
-                           batch_tris[j].tau);
-            let dx = x - t.s.x;
-            let index = first - range.x + j + 1u;
-            let wmax = max(blend4(&q0, t, j, dx, sigma, index), blend4(&q1, t, j, dx, sigma, index));
-            if (wmax > 0.0) {
-                atomicMax(&batch_maxw[j], bitcast<u32>(wmax));
+            let w0 = staged[6u * j];
+            let w1 = staged[6u * j + 1u];
+            let w2 = staged[6u * j + 2u];
+            let dx = x - w0.x;
+            let a = vec3<f32>(1.0 + w1.x * dx, 1.0 + w1.z * dx, 1.0 + w2.x * dx);
+            let gy = vec3<f32>(w1.y, w1.w, w2.y);
+            let tau = vec4<f32>(w0.w);
+            let zero = vec4<f32>(0.0);
+            // ratio < tau means alpha < 1/255: no power needed
+            let r0 = ratio4(q0.y - w0.y, a, gy);
+            let r1 = ratio4(q1.y - w0.y, a, gy);
+            let r2 = ratio4(q2.y - w0.y, a, gy);
+            let r3 = ratio4(q3.y - w0.y, a, gy);
+            let l0 = !q0.done & (r0 > zero) & (r0 >= tau);
+            let l1 = !q1.done & (r1 > zero) & (r1 >= tau);
+            let l2 = !q2.done & (r2 > zero) & (r2 >= tau);
+            let l3 = !q3.done & (r3 > zero) & (r3 >= tau);
+            if (any(l0 | l1 | l2 | l3)) {
+                let c0 = staged[6u * j + 3u];
+                let cx = staged[6u * j + 4u];
+                let cy = staged[6u * j + 5u];
+                let index = first - range.x + j + 1u;
+                let wmax = max(max(blend4(&q0, l0, r0, w0.z, c0, cx, cy, dx, sigma, index),
+                                   blend4(&q1, l1, r1, w0.z, c0, cx, cy, dx, sigma, index)),
+                               max(blend4(&q2, l2, r2, w0.z, c0, cx, cy, dx, sigma, index),
+                                   blend4(&q3, l3, r3, w0.z, c0, cx, cy, dx, sigma, index)));
+                if (wmax > 0.0) {
+                    atomicMax(&batch_maxw[j], bitcast<u32>(wmax));
+                }
             }
         }
         workgroupBarrier();
@@ -190,12 +208,20 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
             }
         }
     }
+    // pixels still running visited every pair of the window (stopped ones kept their index)
+    let visited = vec4<u32>(hi - range.x);
+    q0.evaluated = select(q0.evaluated, visited, !q0.done);
+    q1.evaluated = select(q1.evaluated, visited, !q1.done);
+    q2.evaluated = select(q2.evaluated, visited, !q2.done);
+    q3.evaluated = select(q3.evaluated, visited, !q3.done);
     q[0] = q0;
     q[1] = q1;
+    q[2] = q2;
+    q[3] = q3;
     let one = vec4<u32>(1u);
-    atomicAdd(&work[0], dot(q0.powered + q1.powered, one));
-    atomicAdd(&work[1], dot(q0.added + q1.added, one));
-    for (var g = 0u; g < GROUPS; g++) {
+    atomicAdd(&work[0], dot(q0.powered + q1.powered + q2.powered + q3.powered, one));
+    atomicAdd(&work[1], dot(q0.added + q1.added + q2.added + q3.added, one));
+    for (var g = 0u; g < 4u; g++) {
         for (var k = 0u; k < 4u; k++) {
             let py = row0 + 4u * g + k;
             if (py < params.height && px < params.width) {
