@@ -5,7 +5,7 @@
 #import radix
 
 @group(0) @binding(0) var<uniform> sp: SortParams;
-@group(0) @binding(1) var<storage, read> keys: array<u32>;
+@group(0) @binding(1) var<storage, read> keys: array<vec4<u32>>;  // [ceil(n / 4)], read 4 at a time
 @group(0) @binding(2) var<storage, read_write> counts: array<u32>;  // [16 * num_blocks]
 
 var<workgroup> hist: array<atomic<u32>, 16>;
@@ -20,9 +20,14 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     workgroupBarrier();
     let base = block * SORT_BLOCK + li * SORT_ITEMS;
     var local: array<u32, 16>;
-    for (var i = 0u; i < SORT_ITEMS; i++) {
+    for (var i = 0u; i < SORT_ITEMS; i += 4u) {
         if (base + i < sp.n) {
-            local[(keys[base + i] >> sp.shift) & 15u] += 1u;
+            let k4 = keys[(base + i) / 4u];
+            for (var c = 0u; c < 4u; c++) {
+                if (base + i + c < sp.n) {
+                    local[(k4[c] >> sp.shift) & 15u] += 1u;
+                }
+            }
         }
     }
     for (var d = 0u; d < RADIX; d++) {

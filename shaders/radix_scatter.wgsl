@@ -6,8 +6,8 @@
 #import radix
 
 @group(0) @binding(0) var<uniform> sp: SortParams;
-@group(0) @binding(1) var<storage, read> keys_in: array<u32>;
-@group(0) @binding(2) var<storage, read> vals_in: array<u32>;
+@group(0) @binding(1) var<storage, read> keys_in: array<vec4<u32>>;   // read 4 at a time
+@group(0) @binding(2) var<storage, read> vals_in: array<vec4<u32>>;
 @group(0) @binding(3) var<storage, read> offsets: array<u32>;   // scanned counts
 @group(0) @binding(4) var<storage, read_write> keys_out: array<u32>;
 @group(0) @binding(5) var<storage, read_write> vals_out: array<u32>;
@@ -21,9 +21,15 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     let block = linear_group(wid, nwg);
     let base = block * SORT_BLOCK + li * SORT_ITEMS;
     var local: array<u32, 16>;
+    var keys: array<vec4<u32>, 4>;      // this thread's 16 keys
+    for (var i = 0u; i < 4u; i++) {
+        if (base + 4u * i < sp.n) {
+            keys[i] = keys_in[base / 4u + i];
+        }
+    }
     for (var i = 0u; i < SORT_ITEMS; i++) {
         if (base + i < sp.n) {
-            local[(keys_in[base + i] >> sp.shift) & 15u] += 1u;
+            local[(keys[i / 4u][i % 4u] >> sp.shift) & 15u] += 1u;
         }
     }
     for (var d = 0u; d < RADIX; d++) {
@@ -58,15 +64,21 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         return;
     }
     var seen: array<u32, 16>;
-    for (var i = 0u; i < SORT_ITEMS; i++) {
-        let idx = base + i;
-        if (idx < sp.n) {
-            let key = keys_in[idx];
-            let d = (key >> sp.shift) & 15u;
-            let dst = offsets[d * sp.num_blocks + block] + (table[d * SORT_THREADS + li] - table[d * SORT_THREADS]) + seen[d];
-            seen[d] += 1u;
-            keys_out[dst] = key;
-            vals_out[dst] = vals_in[idx];
+    for (var i = 0u; i < SORT_ITEMS; i += 4u) {
+        if (base + i < sp.n) {
+            let v4 = vals_in[(base + i) / 4u];
+            for (var c = 0u; c < 4u; c++) {
+                let idx = base + i + c;
+                if (idx < sp.n) {
+                    let key = keys[i / 4u][c];
+                    let d = (key >> sp.shift) & 15u;
+                    let dst = offsets[d * sp.num_blocks + block] + (table[d * SORT_THREADS + li] - table[d * SORT_THREADS])
+                              + seen[d];
+                    seen[d] += 1u;
+                    keys_out[dst] = key;
+                    vals_out[dst] = v4[c];
+                }
+            }
         }
     }
 }

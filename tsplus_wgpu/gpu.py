@@ -200,7 +200,8 @@ class GpuContext:
     def buffer(self, nbytes, label="", usage=None):
         usage = usage if usage is not None else (
             wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST)
-        nbytes = max(16, (int(nbytes) + 3) // 4 * 4)  # zero-sized buffers are invalid
+        # zero-sized buffers are invalid; whole vec4s so any buffer can be read 16 bytes at a time
+        nbytes = max(16, (int(nbytes) + 15) // 16 * 16)
         self.check_size(label or "buffer", nbytes)
         buf = self.device.create_buffer(size=nbytes, usage=usage, label=label)
         if self.poison and usage & wgpu.BufferUsage.COPY_DST:
@@ -214,8 +215,8 @@ class GpuContext:
         self.check_size(label or "buffer", arr.nbytes)
         usage = usage if usage is not None else (
             wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST)
-        if arr.nbytes % 4:
-            arr = np.concatenate([arr.view(np.uint8).ravel(), np.zeros(4 - arr.nbytes % 4, np.uint8)])
+        if arr.nbytes % 16:   # whole vec4s (see buffer())
+            arr = np.concatenate([arr.view(np.uint8).ravel(), np.zeros(16 - arr.nbytes % 16, np.uint8)])
         return self.device.create_buffer_with_data(data=arr, usage=usage, label=label)
 
     def uniform(self, struct_value, label=""):
