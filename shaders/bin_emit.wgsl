@@ -4,16 +4,16 @@
 #import frame
 #import dispatch
 #import triangle
-#import binning
 
 @group(0) @binding(0) var<uniform> params: FrameParams;
 @group(0) @binding(1) var<storage, read> tris: array<Tri2D>;          // [M]
 @group(0) @binding(2) var<storage, read> pixel_rects: array<vec4<i32>>; // [M]
 @group(0) @binding(3) var<storage, read> tri_from_rank: array<u32>;   // [M]
 @group(0) @binding(4) var<storage, read> row_offsets: array<u32>;     // [M] by rank
-@group(0) @binding(5) var<storage, read> offsets: array<u32>;         // [R] by item
-@group(0) @binding(6) var<storage, read_write> pair_tiles: array<u32>; // [P]
-@group(0) @binding(7) var<storage, read_write> pair_tris: array<u32>;  // [P]
+@group(0) @binding(5) var<storage, read> item_rank: array<u32>;       // [R] rank of each item
+@group(0) @binding(6) var<storage, read> offsets: array<u32>;         // [R] by item
+@group(0) @binding(7) var<storage, read_write> pair_tiles: array<u32>; // [P]
+@group(0) @binding(8) var<storage, read_write> pair_tris: array<u32>;  // [P]
 
 @compute @workgroup_size(256)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
@@ -22,7 +22,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if (q >= params.num_rows) {
         return;
     }
-    let j = rank_of_item(q, params.num_triangles);
+    let j = item_rank[q];
     let t = tri_from_rank[j];
     let rect = pixel_rects[t];
     let tri = tris[t];

@@ -10,7 +10,7 @@ import numpy as np
 
 from . import reference
 from .gpu import GpuContext, Profiler
-from .stages import (BinCount, BinEmit, BinRows, MaxReduce, PrefixSum, ProjectTriangles, RadixSort,
+from .stages import (BinCount, BinEmit, BinItems, BinRows, MaxReduce, PrefixSum, ProjectTriangles, RadixSort,
                      RasterizeForward, Scratch, ShToColor, TileRanges)
 from .types import Camera, TriangleModel
 
@@ -114,6 +114,7 @@ class Renderer:
         self.sh_to_color = ShToColor(c)
         self.project = ProjectTriangles(c)
         self.bin_rows = BinRows(c)
+        self.bin_items = BinItems(c)
         self.bin_count = BinCount(c)
         self.max_reduce = MaxReduce(c)
         self.bin_emit = BinEmit(c)
@@ -243,8 +244,11 @@ class Renderer:
         # 2. count the pairs of every item, and per tile
         params = self._frame_params(model, camera, sigma, bg, near, 0, num_rows)
         b["counts"] = c.buffer(4 * num_rows, "counts")
-        self.bin_count(state["enc"], params, b["tris"], b["pixel_rects"], order, b["row_offsets"], b["counts"],
-                       b["tile_counts"], num_rows, prof)
+        b["item_rank"] = c.buffer(4 * num_rows, "item_rank")
+        self.bin_items(state["enc"], params, b["pixel_rects"], order, b["row_offsets"], b["item_rank"], m, prof)
+        flush("bin_rows")
+        self.bin_count(state["enc"], params, b["tris"], b["pixel_rects"], order, b["row_offsets"], b["item_rank"],
+                       b["counts"], b["tile_counts"], num_rows, prof)
         pairs_total = self.scan.record(state["enc"], b["counts"], num_rows, profiler=prof, label="bin_count")
         self.max_reduce(state["enc"], b["tile_counts"], b["max_tile_pairs"], ntiles, prof, "bin_count")
         flush("bin_count", force=True)
@@ -262,8 +266,8 @@ class Renderer:
         b["n_contrib"] = c.buffer(8 * h * w, "n_contrib")
         b["max_weight"] = c.buffer(4 * m, "max_weight")
         b["work"] = c.buffer(16, "work")
-        self.bin_emit(state["enc"], params, b["tris"], b["pixel_rects"], order, b["row_offsets"], b["counts"],
-                      b["pair_tiles"], b["pair_tris"], num_rows, prof)
+        self.bin_emit(state["enc"], params, b["tris"], b["pixel_rects"], order, b["row_offsets"], b["item_rank"],
+                      b["counts"], b["pair_tiles"], b["pair_tris"], num_rows, prof)
         flush("bin_emit")
         tile_bits = max(1, int(ntiles - 1).bit_length())
         keys, vals = self.tile_sort.record(state["enc"], b["pair_tiles"], b["pair_tris"], num_pairs, tile_bits, prof)

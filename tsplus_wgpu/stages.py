@@ -50,26 +50,37 @@ class BinRows(Stage):
                       profiler)
 
 
+class BinItems(Stage):
+    stage = "bin_items"
+
+    def __call__(self, enc, params, pixel_rects, tri_from_rank, row_offsets, item_rank, num_triangles,
+                 profiler=None):
+        self.dispatch(enc, _groups(num_triangles, 256),
+                      dict(params=params, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank,
+                           row_offsets=row_offsets, item_rank=item_rank), profiler)
+
+
 class BinCount(Stage):
     stage = "bin_count"
 
-    def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, row_offsets, counts, tile_counts, num_rows,
-                 profiler=None):
+    def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, row_offsets, item_rank, counts, tile_counts,
+                 num_rows, profiler=None):
         enc.clear_buffer(tile_counts)
         self.dispatch(enc, _groups(num_rows, 256),
                       dict(params=params, tris=tris, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank,
-                           row_offsets=row_offsets, counts=counts, tile_counts=tile_counts), profiler)
+                           row_offsets=row_offsets, item_rank=item_rank, counts=counts, tile_counts=tile_counts),
+                      profiler)
 
 
 class BinEmit(Stage):
     stage = "bin_emit"
 
-    def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, row_offsets, offsets, pair_tiles, pair_tris,
-                 num_rows, profiler=None):
+    def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, row_offsets, item_rank, offsets, pair_tiles,
+                 pair_tris, num_rows, profiler=None):
         self.dispatch(enc, _groups(num_rows, 256),
                       dict(params=params, tris=tris, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank,
-                           row_offsets=row_offsets, offsets=offsets, pair_tiles=pair_tiles, pair_tris=pair_tris),
-                      profiler)
+                           row_offsets=row_offsets, item_rank=item_rank, offsets=offsets, pair_tiles=pair_tiles,
+                           pair_tris=pair_tris), profiler)
 
 
 class MaxReduce(Stage):
@@ -226,5 +237,5 @@ def scan_numpy(ctx: GpuContext, values):
     return ctx.read(buf, np.uint32, n), int(ctx.read(total, np.uint32, 1)[0])
 
 
-__all__ = ["ShToColor", "ProjectTriangles", "BinRows", "BinCount", "BinEmit", "MaxReduce", "BLEND_PASS_PAIRS", "TileRanges", "RasterizeForward",
+__all__ = ["ShToColor", "ProjectTriangles", "BinRows", "BinItems", "BinCount", "BinEmit", "MaxReduce", "BLEND_PASS_PAIRS", "TileRanges", "RasterizeForward",
            "PrefixSum", "RadixSort", "Scratch", "PeakFma", "scan_numpy", "wgpu"]
