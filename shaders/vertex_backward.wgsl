@@ -1,6 +1,6 @@
-// Per vertex: gather its corners' gradients (corners sorted by vertex with a stable
-// radix sort, so summed in corner order: deterministic, nothing lost), then the SH
-// chain rule: colour = max(0, SH(dir) . sh + 0.5), dir = (x - centre) / |x - centre|;
+// Per vertex: its corners' gradients summed (vertex_sums: corners sorted by vertex with a
+// stable radix sort, then the bounded segmented sum of segment_up/segment_down:
+// deterministic, nothing lost), then the SH chain rule: colour = max(0, SH(dir) . sh + 0.5), dir = (x - centre) / |x - centre|;
 // dL/d sh and the view-direction term of dL/d position (zero where the colour is clamped).
 #import frame
 #import dispatch
@@ -9,26 +9,10 @@
 @group(0) @binding(0) var<uniform> params: FrameParams;
 @group(0) @binding(1) var<storage, read> positions: array<f32>;          // [N, 3]
 @group(0) @binding(2) var<storage, read> sh_coeffs: array<f32>;          // [N, K, 3]
-@group(0) @binding(3) var<storage, read> sorted_keys: array<u32>;        // [3 M] vertex of each corner, sorted
-@group(0) @binding(4) var<storage, read> sorted_corners: array<u32>;     // [3 M] corner index
-@group(0) @binding(5) var<storage, read> corner_grads: array<vec4<f32>>; // [3 M, 2]
-@group(0) @binding(6) var<storage, read_write> v_positions: array<f32>;  // [N, 3]
-@group(0) @binding(7) var<storage, read_write> v_sh: array<f32>;         // [N, K, 3]
-@group(0) @binding(8) var<storage, read_write> v_opacity: array<f32>;    // [N]
-
-fn lower_bound(key: u32, n: u32) -> u32 {
-    var lo = 0u;
-    var hi = n;
-    while (lo < hi) {
-        let mid = lo + (hi - lo) / 2u;
-        if (sorted_keys[mid] < key) {
-            lo = mid + 1u;
-        } else {
-            hi = mid;
-        }
-    }
-    return lo;
-}
+@group(0) @binding(3) var<storage, read> vertex_sums: array<vec4<f32>>; // [N, 2]: d colour, d opacity; d position
+@group(0) @binding(4) var<storage, read_write> v_positions: array<f32>;  // [N, 3]
+@group(0) @binding(5) var<storage, read_write> v_sh: array<f32>;         // [N, K, 3]
+@group(0) @binding(6) var<storage, read_write> v_opacity: array<f32>;    // [N]
 
 @compute @workgroup_size(256)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
@@ -37,17 +21,10 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if (v >= params.num_vertices) {
         return;
     }
-    let n = 3u * params.num_triangles;
-    var vc = vec3<f32>(0.0);
-    var vo = 0.0;
-    var vx = vec3<f32>(0.0);
-    for (var i = lower_bound(v, n); i < n && sorted_keys[i] == v; i++) {
-        let c = sorted_corners[i];
-        let a = corner_grads[2u * c];
-        vc += a.xyz;
-        vo += a.w;
-        vx += corner_grads[2u * c + 1u].xyz;
-    }
+    let a = vertex_sums[2u * v];
+    let vc = a.xyz;
+    let vo = a.w;
+    var vx = vertex_sums[2u * v + 1u].xyz;
     let x = vec3<f32>(positions[3u * v], positions[3u * v + 1u], positions[3u * v + 2u]);
     let delta = x - params.cam_center.xyz;
     let len = length(delta);

@@ -6,16 +6,20 @@ Stages, each a ``shaders/<stage>.wgsl`` with a class of the same name:
    (per tile, in passes of at most 4096 pairs per tile): front-to-back replay of the forward blend up to each
    pixel's last contributing pair; per (triangle, tile) pair the 19 sufficient statistics
    of ``common/grad_stats.wgsl``, summed over the tile's pixels in a fixed order.
-2. ``invert_permutation``: depth rank of every triangle.
-3. ``pair_reduce`` (per triangle): sum of its pairs' statistics, tiles in a fixed order
-   (its pair in each tile found by binary search on the depth rank).
-4. ``project_backward`` (per triangle): exact chain rule to its three corners.
-5. corner -> vertex CSR: the triangle index buffer sorted by vertex with the stable
-   :class:`RadixSort` (values: corner indices), so each vertex's corners come in order.
-6. ``vertex_backward`` (per vertex): gather its corners, then the SH chain rule.
+2. pair reduce: the pairs sorted by triangle with the stable :class:`RadixSort` (so each
+   triangle's pairs come in tile order), then :class:`SegmentSum` (``segment_up`` /
+   ``segment_down``) of their statistics per triangle.
+3. ``project_backward`` (per triangle): exact chain rule to its three corners.
+4. corner -> vertex: the triangle index buffer sorted by vertex with the stable
+   :class:`RadixSort` (values: corner indices), so each vertex's corners come in order;
+   :class:`SegmentSum` of their gradients per vertex.
+5. ``vertex_backward`` (per vertex): the SH chain rule.
 
 Every float sum has a fixed order, so the gradients are bit-identical from run to run on
-one adapter, and nothing is lost on shared vertices.
+one adapter, and nothing is lost on shared vertices. No invocation loops more than a
+bounded number of times whatever the scene (lavapipe ends an invocation's loops after
+65535 iterations in total): the segmented sums read at most ``CHUNK`` elements each, on
+as many levels as needed.
 """
 
 from __future__ import annotations
@@ -65,22 +69,54 @@ class RasterizeBackward(Stage):
                                state=state, partials=partials), profiler)
 
 
-class InvertPermutation(Stage):
-    stage = "invert_permutation"
-
-    def __call__(self, enc, src, dst, n, profiler=None):
-        pp = self.uniform("PermParams", n=n)
-        self.dispatch(enc, _groups(n, 256), dict(pp=pp, src=src, dst=dst), profiler)
+class SegmentUp(Stage):
+    stage = "segment_up"
 
 
-class PairReduce(Stage):
-    stage = "pair_reduce"
+class SegmentDown(Stage):
+    stage = "segment_down"
 
-    def __call__(self, enc, params, pixel_rects, ranges, pair_tris, rank_from_tri, partials, tri_stats,
-                 num_triangles, profiler=None):
-        self.dispatch(enc, _groups(num_triangles, 256),
-                      dict(params=params, pixel_rects=pixel_rects, ranges=ranges, pair_tris=pair_tris,
-                           rank_from_tri=rank_from_tri, partials=partials, tri_stats=tri_stats), profiler)
+
+#: Elements summed per invocation and level (``CHUNK`` in shaders/common/segment.wgsl).
+SEGMENT_CHUNK = 64
+
+
+class SegmentSum:
+    """Deterministic segmented sum with bounded work per invocation (see
+    ``shaders/common/segment.wgsl``): ``out[key] = sum of the values of the elements with
+    that key``, in a fixed order, for sorted ``keys [n]``; element i's value is the
+    ``width`` vec4s at ``vals[index[i] * width:]``. ``out`` (``[keys, width]`` vec4) is
+    zeroed first, so keys without elements get zero."""
+
+    def __init__(self, ctx, scratch, name):
+        self.ctx = ctx
+        self.scratch = scratch
+        self.name = name
+        self.up = SegmentUp(ctx)
+        self.down = SegmentDown(ctx)
+
+    def record(self, enc, keys, index, vals, n, width, out, profiler=None, label=None):
+        assert 1 <= width <= 5
+        enc.clear_buffer(out)
+        if n == 0:
+            return
+        levels = [(keys, vals, int(n))]
+        while levels[-1][2] > SEGMENT_CHUNK:
+            k_in, v_in, n_l = levels[-1]
+            nc = _groups(n_l, SEGMENT_CHUNK)
+            depth = len(levels)
+            k_out = self.scratch.get(f"{self.name}_keys_{depth}", 4 * nc)
+            v_out = self.scratch.get(f"{self.name}_vals_{depth}", 16 * width * nc)
+            sp = self.up.uniform("SegParams", n=n_l, width=width, gather=int(depth == 1), top=0)
+            self.up.dispatch(enc, _groups(nc, 256), dict(sp=sp, keys_in=k_in, index=index, vals_in=v_in,
+                                                          keys_out=k_out, vals_out=v_out), profiler, label)
+            levels.append((k_out, v_out, nc))
+        for depth in range(len(levels) - 1, -1, -1):
+            k_in, v_in, n_l = levels[depth]
+            sp = self.down.uniform("SegParams", n=n_l, width=width, gather=int(depth == 0),
+                                   top=int(depth == len(levels) - 1))
+            self.down.dispatch(enc, _groups(n_l, 256), dict(sp=sp, keys_in=k_in, index=index, vals_in=v_in,
+                                                             out=out), profiler, label)
 
 
 class ProjectBackward(Stage):
@@ -97,12 +133,11 @@ class ProjectBackward(Stage):
 class VertexBackward(Stage):
     stage = "vertex_backward"
 
-    def __call__(self, enc, params, positions, sh, sorted_keys, sorted_corners, corner_grads, v_positions,
-                 v_sh, v_opacity, num_vertices, profiler=None):
+    def __call__(self, enc, params, positions, sh, vertex_sums, v_positions, v_sh, v_opacity, num_vertices,
+                 profiler=None):
         self.dispatch(enc, _groups(num_vertices, 256),
-                      dict(params=params, positions=positions, sh_coeffs=sh, sorted_keys=sorted_keys,
-                           sorted_corners=sorted_corners, corner_grads=corner_grads, v_positions=v_positions,
-                           v_sh=v_sh, v_opacity=v_opacity), profiler)
+                      dict(params=params, positions=positions, sh_coeffs=sh, vertex_sums=vertex_sums,
+                           v_positions=v_positions, v_sh=v_sh, v_opacity=v_opacity), profiler)
 
 
 class BackwardPass:
@@ -114,8 +149,9 @@ class BackwardPass:
         self.ctx = c
         self.prepare = BackwardPrepare(c)
         self.raster = RasterizeBackward(c)
-        self.invert = InvertPermutation(c)
-        self.pair_reduce = PairReduce(c)
+        self.pair_sort = RadixSort(c, renderer.scratch, "pair_sort")
+        self.pair_sum = SegmentSum(c, renderer.scratch, "pair_sum")
+        self.corner_sum = SegmentSum(c, renderer.scratch, "corner_sum")
         self.project = ProjectBackward(c)
         self.vertex = VertexBackward(c)
         self.corner_sort = RadixSort(c, renderer.scratch, "corner_sort")
@@ -160,8 +196,10 @@ class BackwardPass:
         params = r._frame_params(model, cam, result.sigma, np.asarray(result.background), result.near, P)
         keys = c.buffer(12 * m, "corner_keys")
         vals = c.upload(np.arange(3 * m, dtype=np.uint32), "corner_ids")
+        pkeys = c.buffer(4 * P, "pair_keys")
+        pvals = c.upload(np.arange(P, dtype=np.uint32), "pair_ids")
         buf = dict(v_out=c.upload(v_out, "v_out"), partials=c.buffer(4 * NSTAT * P, "partials"),
-                   rank_from_tri=c.buffer(4 * m, "rank_from_tri"), tri_stats=c.buffer(4 * NSTAT * m, "tri_stats"),
+                   tri_stats=c.buffer(4 * NSTAT * m, "tri_stats"), vertex_sums=c.buffer(32 * n, "vertex_sums"),
                    corner_grads=c.buffer(32 * 3 * m, "corner_grads"), state=c.buffer(16 * h * w, "backward_state"))
         # the longest tile list sizes the passes of rasterize_backward (a small readback)
         rg = c.read(b["ranges"], np.uint32, 2 * tx * ty).reshape(-1, 2).astype(np.int64)
@@ -174,9 +212,11 @@ class BackwardPass:
         self.raster(enc, params, b["ranges"], b["pair_tris"], b["tris"], buf["v_out"], buf["state"], buf["partials"],
                     tx, ty, max_range, prof)
         submit(enc, "rasterize_backward"); enc = c.device.create_command_encoder()
-        self.invert(enc, b["tri_from_rank"], buf["rank_from_tri"], m, prof)
-        self.pair_reduce(enc, params, b["pixel_rects"], b["ranges"], b["pair_tris"], buf["rank_from_tri"],
-                         buf["partials"], buf["tri_stats"], m, prof)
+        # each triangle's pairs together, in tile order (stable sort by triangle), then summed
+        enc.copy_buffer_to_buffer(b["pair_tris"], 0, pkeys, 0, 4 * P)
+        tbits = max(1, int(m - 1).bit_length())
+        pk, pv = self.pair_sort.record(enc, pkeys, pvals, P, tbits, prof)
+        self.pair_sum.record(enc, pk, pv, buf["partials"], P, NSTAT // 4, buf["tri_stats"], prof, "pair_reduce")
         submit(enc, "pair_reduce"); enc = c.device.create_command_encoder()
         self.project(enc, params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"], b["tris"],
                      b["pixel_rects"], buf["tri_stats"], buf["corner_grads"], m, prof)
@@ -184,9 +224,11 @@ class BackwardPass:
         enc.copy_buffer_to_buffer(dev["triangles"], 0, keys, 0, 12 * m)
         bits = max(1, int(n - 1).bit_length())
         skeys, svals = self.corner_sort.record(enc, keys, vals, 3 * m, bits, prof)
-        submit(enc, "corner_sort"); enc = c.device.create_command_encoder()
-        self.vertex(enc, params, dev["positions"], dev["sh"], skeys, svals, buf["corner_grads"], out["v_positions"],
-                    out["v_sh"], out["v_opacity"], n, prof)
+        self.corner_sum.record(enc, skeys, svals, buf["corner_grads"], 3 * m, 2, buf["vertex_sums"], prof,
+                               "corner_sum")
+        submit(enc, "corner_sum"); enc = c.device.create_command_encoder()
+        self.vertex(enc, params, dev["positions"], dev["sh"], buf["vertex_sums"], out["v_positions"], out["v_sh"],
+                    out["v_opacity"], n, prof)
         submit(enc, "vertex_backward")
         if prof is not None:
             times = prof.resolve()
