@@ -1,0 +1,16 @@
+"""Training building blocks: schedules, initialisation, loss on the device, Adam on the device.
+
+* :mod:`.schedules` - every schedule of method.md (:class:`Schedule`), opacity-floor logit mapping.
+* :mod:`.init` - :func:`init_from_points` (SfM points -> Delaunay faces -> TriangleModel).
+* :mod:`.losses` - :class:`ImageLoss` (0.8 L1 + 0.2 (1 - SSIM) and its image gradient, WGSL) and
+  the float64 twin :func:`image_loss_reference`.
+* :mod:`.optim` - :class:`Adam` (WGSL, one dispatch per parameter group) and :func:`adam_reference`.
+
+The device modules import wgpu; they are loaded on first use.
+"""
+
+from .init import InitInfo, delaunay_faces, init_from_points
+from .schedules import Schedule, logit_from_opacity, opacity_from_logit, reinvert_logits
+
+__all__ = ["Schedule", "opacity_from_logit", "logit_from_opacity", "reinvert_logits", "init_from_points",
+           "delaunay_faces", "InitInfo"]

@@ -1,0 +1,169 @@
+"""Initial triangle model from SfM points: de-duplicate, 3D Delaunay (scipy/Qhull), keep all
+unique faces of all tetrahedra; colours become SH DC, opacity 0.28.
+
+Degenerate inputs (handled, never a hang or crash):
+
+* non-finite points or colours: ``ValueError`` naming the count.
+* exact duplicate points: merged before triangulating; their colours are averaged.
+* fewer than 3 distinct points, or all distinct points on one line: ``ValueError``
+  (no triangle can be formed).
+* exactly 3 distinct non-collinear points: the single triangle.
+* all points on one plane, or so nearly on one plane that the thickness is below
+  ``flat_tol`` times the extent (smallest / largest singular value of the centred points):
+  a 2-D Delaunay triangulation in that plane (points projected on its two principal
+  axes); the 3-D positions are kept as they are.
+* otherwise 3-D Delaunay with scipy's default Qhull options; if Qhull fails (e.g. a nearly
+  flat cloud just above ``flat_tol``), once more with ``QJ`` (joggled input: every
+  simplex is a real tetrahedron; the original, unjoggled positions are kept), and if that
+  fails too the 2-D route above.
+* faces of zero area (degenerate tetrahedra from co-spherical points) are dropped, and
+  points that end in no face (Qhull's "coplanar" interior points) are removed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import Delaunay, QhullError
+
+from ..types import TriangleModel
+from .schedules import INIT_OPACITY
+
+SH_C0 = 0.28209479177387814
+FLAT_TOL = 1e-6
+AREA_TOL = 1e-12   # relative to extent^2
+
+
+@dataclass
+class InitInfo:
+    """How the triangulation was obtained."""
+    method: str            # "delaunay3d", "delaunay3d-QJ", "delaunay2d", "single"
+    num_input: int         # points given
+    num_unique: int        # after de-duplication
+    num_dropped: int       # unique points in no face (removed)
+    num_degenerate_faces: int
+
+
+def _check(name, arr, cols):
+    arr = np.asarray(arr, np.float64)
+    if arr.ndim != 2 or arr.shape[1] != cols:
+        raise ValueError(f"{name}: expected shape [N, {cols}], got {arr.shape}")
+    bad = arr.shape[0] - int(np.count_nonzero(np.all(np.isfinite(arr), axis=1)))
+    if bad:
+        raise ValueError(f"{name}: {bad} point(s) with NaN or Inf coordinates; remove them first")
+    return arr
+
+
+def _faces_of_tets(tets):
+    """All unique faces of the tetrahedra, as sorted index triples in lexicographic order."""
+    tets = np.asarray(tets, np.int64)
+    f = np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]], tets[:, [1, 2, 3]]])
+    f.sort(axis=1)
+    return np.unique(f, axis=0)
+
+
+def _plane_axes(pts):
+    centre = pts.mean(axis=0)
+    _, s, vt = np.linalg.svd(pts - centre, full_matrices=False)
+    return centre, s, vt
+
+
+def _delaunay2d(pts, vt, centre):
+    uv = (pts - centre) @ vt[:2].T
+    tri = Delaunay(uv, qhull_options="Qbb Qc Qz")
+    return np.sort(np.asarray(tri.simplices, np.int64), axis=1)
+
+
+def delaunay_faces(points, flat_tol=FLAT_TOL):
+    """Triangles of the Delaunay tetrahedralisation of distinct ``points`` [N, 3].
+
+    Returns ``(faces [M, 3] int64, method)``; see the module docstring for the degenerate cases.
+    """
+    pts = np.asarray(points, np.float64)
+    n = pts.shape[0]
+    if n < 3:
+        raise ValueError(f"points: need at least 3 distinct points to form a triangle, got {n}")
+    centre, s, vt = _plane_axes(pts)
+    if s[0] == 0 or s[1] <= flat_tol * s[0]:
+        raise ValueError(f"points: all {n} distinct points lie on one line; no triangle can be formed")
+    if n == 3:
+        return np.array([[0, 1, 2]], np.int64), "single"
+    if s[2] <= flat_tol * s[0]:
+        return _delaunay2d(pts, vt, centre), "delaunay2d"
+    for opts, method in (("Qbb Qc Qz Q12", "delaunay3d"), ("QJ Qbb Qz", "delaunay3d-QJ")):
+        try:
+            tri = Delaunay(pts, qhull_options=opts)
+        except QhullError:
+            continue
+        if len(tri.simplices):
+            return _faces_of_tets(tri.simplices), method
+    return _delaunay2d(pts, vt, centre), "delaunay2d"
+
+
+def init_from_points(points, colors=None, sh_degree=3, opacity=INIT_OPACITY, flat_tol=FLAT_TOL,
+                     return_info=False):
+    """The initial :class:`~tsplus_wgpu.TriangleModel` from SfM points.
+
+    Args:
+        points: ``[P, 3]`` positions (NaN/Inf rejected with a ValueError).
+        colors: ``[P, 3]`` RGB in [0, 1] (floats) or 0..255 (uint8); None gives grey (0.5).
+        sh_degree: SH degree of the model's storage (0..3); coefficients above DC are 0.
+        opacity: activated opacity of every vertex (0.28).
+        flat_tol: relative thickness below which the cloud is treated as planar.
+        return_info: also return an :class:`InitInfo`.
+
+    Returns:
+        a TriangleModel whose vertices are the distinct points used by a face and whose
+        triangles are all unique faces of all Delaunay tetrahedra (or the 2-D fallback).
+    """
+    pts = _check("points", points, 3)
+    if colors is None:
+        cols = np.full_like(pts, 0.5)
+    else:
+        raw = np.asarray(colors)
+        cols = _check("colors", raw, 3)
+        if cols.shape[0] != pts.shape[0]:
+            raise ValueError(f"colors: expected {pts.shape[0]} rows (one per point), got {cols.shape[0]}")
+        if raw.dtype == np.uint8:
+            cols = cols / 255.0
+    if not 0 <= int(sh_degree) <= 3:
+        raise ValueError(f"sh_degree: expected 0..3, got {sh_degree!r}")
+    if not 0.0 <= float(opacity) <= 1.0:
+        raise ValueError(f"opacity: expected a value in [0, 1], got {opacity!r}")
+
+    # De-duplicate exact copies (rows of the same coordinates), averaging their colours.
+    uniq, inverse = np.unique(pts, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    counts = np.bincount(inverse, minlength=len(uniq)).astype(np.float64)
+    ucol = np.stack([np.bincount(inverse, weights=cols[:, c], minlength=len(uniq)) for c in range(3)], 1).astype(np.float64)
+    ucol /= np.maximum(counts, 1.0)[:, None]
+
+    faces, method = delaunay_faces(uniq, flat_tol)
+
+    # Drop zero-area faces.
+    a, b, c = uniq[faces[:, 0]], uniq[faces[:, 1]], uniq[faces[:, 2]]
+    area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    extent = float(np.ptp(uniq, axis=0).max())
+    keep = area2 > 2.0 * AREA_TOL * extent * extent
+    num_degenerate = int(np.count_nonzero(~keep))
+    faces = faces[keep]
+    if len(faces) == 0:
+        raise ValueError("points: every candidate triangle is degenerate (zero area); no triangle can be formed")
+
+    # Keep only the vertices some face uses, renumbered in their sorted order.
+    used = np.zeros(len(uniq), bool)
+    used[faces.ravel()] = True
+    new_from_old = np.cumsum(used) - 1
+    positions = uniq[used]
+    tris = new_from_old[faces]
+
+    k = (int(sh_degree) + 1) ** 2
+    sh = np.zeros((len(positions), k, 3))
+    sh[:, 0] = (ucol[used] - 0.5) / SH_C0
+    model = TriangleModel(positions, tris, sh, np.full(len(positions), float(opacity)))
+    if return_info:
+        info = InitInfo(method=method, num_input=len(pts), num_unique=len(uniq),
+                        num_dropped=int(np.count_nonzero(~used)), num_degenerate_faces=num_degenerate)
+        return model, info
+    return model

@@ -1,0 +1,264 @@
+"""Every training schedule of Triangle Splatting+ (``method.md``) as pure functions of the
+iteration and the run length.
+
+Iterations are counted as in the authors' trainer: the first optimisation step is
+iteration 1, the last is ``total``; iteration 0 is the initial state.
+
+The constants are the ones of the 30k-iteration run. With ``quick=True`` every iteration
+constant (starts, ends, intervals) is scaled by ``total / 30000`` (rounded, intervals at
+least 1), so a short run goes through the same phases in the same proportions. Periodic
+events happen at ``start + k * interval`` (k >= 0 or >= 1 as stated per function); at full
+scale that is the same as "every multiple of 500", since every start is a multiple of 500.
+Schedules that are already expressed over the run (position learning-rate decay, sigma)
+use ``total`` directly and need no scaling.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+FULL_RUN = 30000
+
+# Learning rates
+POSITION_LR_INIT = 0.0015
+POSITION_LR_FINAL = 0.0015 / 100
+POSITION_LR_START = 1000          # positions are frozen (lr 0) before this iteration
+SH_DC_LR = (0.0016, 0.004)        # (outdoor, indoor)
+SH_REST_DIVISOR = 20.0
+OPACITY_LR = (0.03, 0.05)
+ADAM_EPS = 1e-15
+
+# SH degree
+SH_DEGREE_EVERY = 1000
+SH_DEGREE_MAX = 3
+
+# Window sharpness
+SIGMA_INIT = 1.0
+SIGMA_FINAL = 0.0001
+
+# Opacity floor m
+FLOOR_START = 5000
+FLOOR_EVERY = 500
+FLOOR_RAMP_END = 24000
+FLOOR_MIN = 0.1
+FLOOR_MAX = 0.9999
+INIT_OPACITY = 0.28
+
+# Pruning
+PRUNE_AFTER = (4000, 3000)        # prune at PRUNE_AFTER + k * PRUNE_EVERY, k >= 1
+PRUNE_EVERY = 500
+HARD_PRUNE_AT = 5000
+PRUNE_THRESHOLD = 0.235
+PRUNE_THRESHOLD_STEP = 0.01       # added every PRUNE_EVERY iterations after HARD_PRUNE_AT
+PRUNE_MAX_SIZE_PX = (1400.0, 1300.0)
+FINAL_PRUNE_WEIGHT = 0.5
+
+# Densification
+DENSIFY_WINDOW = ((500, 13000), (1000, 25000))  # exclusive bounds, (outdoor, indoor)
+DENSIFY_EVERY = 500
+DENSIFY_GROWTH = (1.23, 1.27)
+DENSIFY_CAP = 3_000_000
+DENSIFY_ALWAYS_LARGEST = (100, 500)
+DENSIFY_MIN_AREA = 7.5e-5
+
+# Losses
+OPACITY_REG_WEIGHT = 1.9e-6
+OPACITY_REG_UNTIL = 5000          # applied while it < this
+NORMAL_LOSS_AFTER = 5000          # applied while it > this
+NORMAL_LOSS_WEIGHT = (0.05, 0.025)
+
+# Anti-aliasing (render at s x resolution, area-downsample)
+SUPERSAMPLE_STEPS = ((20000, 2), (25000, 4))
+SUPERSAMPLE_EVAL = 4
+
+
+def _check_it(it):
+    if isinstance(it, bool) or int(it) != it or it < 0:
+        raise ValueError(f"iteration: expected an integer >= 0, got {it!r}")
+    return int(it)
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """All schedules of one run.
+
+    Args:
+        total: number of iterations of the run (>= 1).
+        indoor: use the indoor constants (the bracketed values of method.md).
+        quick: scale every iteration constant by ``total / 30000`` (for short runs).
+    """
+
+    total: int = FULL_RUN
+    indoor: bool = False
+    quick: bool = False
+
+    def __post_init__(self):
+        if isinstance(self.total, bool) or int(self.total) != self.total or self.total < 1:
+            raise ValueError(f"total: expected an integer >= 1, got {self.total!r}")
+
+    # ------------------------------------------------------------------ scaling
+    def at(self, iteration_at_30k):
+        """An iteration constant of the 30k run in this run's units (scaled when quick)."""
+        if not self.quick:
+            return int(iteration_at_30k)
+        return int(round(iteration_at_30k * self.total / FULL_RUN))
+
+    def every(self, interval_at_30k):
+        """An interval of the 30k run in this run's units (>= 1)."""
+        return max(1, self.at(interval_at_30k))
+
+    def _pick(self, pair):
+        return pair[1] if self.indoor else pair[0]
+
+    # ------------------------------------------------------------------ learning rates
+    def position_lr(self, it, scale=1.0):
+        """0 before iteration 1000; from then log-linear from 0.0015 at iteration 0 to
+        0.0015/100 at the last iteration (the decay runs over the whole run, as in 3DGS's
+        exponential schedule; the first 1000 iterations are masked to 0). ``scale`` multiplies
+        the rate (e.g. a scene-extent factor; method.md uses none)."""
+        it = _check_it(it)
+        if it < self.at(POSITION_LR_START):
+            return 0.0
+        t = min(max(it / self.total, 0.0), 1.0)
+        return scale * math.exp(math.log(POSITION_LR_INIT) * (1.0 - t) + math.log(POSITION_LR_FINAL) * t)
+
+    def sh_dc_lr(self, it=0):
+        return self._pick(SH_DC_LR)
+
+    def sh_rest_lr(self, it=0):
+        return self._pick(SH_DC_LR) / SH_REST_DIVISOR
+
+    def opacity_lr(self, it=0):
+        return self._pick(OPACITY_LR)
+
+    def learning_rates(self, it, position_scale=1.0):
+        return {"positions": self.position_lr(it, position_scale), "sh_dc": self.sh_dc_lr(it),
+                "sh_rest": self.sh_rest_lr(it), "opacity": self.opacity_lr(it)}
+
+    # ------------------------------------------------------------------ SH degree, sigma
+    def sh_degree(self, it):
+        """+1 every 1000 iterations, up to 3: 0 for it < 1000, 1 for it < 2000, ..."""
+        it = _check_it(it)
+        return min(SH_DEGREE_MAX, it // self.every(SH_DEGREE_EVERY))
+
+    def sigma(self, it):
+        """Linear from 1.0 at iteration 0 to 0.0001 at the last iteration (held after)."""
+        t = min(_check_it(it) / self.total, 1.0)
+        return SIGMA_INIT + (SIGMA_FINAL - SIGMA_INIT) * t
+
+    # ------------------------------------------------------------------ opacity floor
+    def opacity_floor(self, it):
+        """m: 0 before iteration 5000; at 5000 + k*500 (k >= 0) it becomes
+        ``0.1 + (0.9999 - 0.1) * clamp((it - 5000) / (24000 - 5000), 0, 1)`` and holds until the
+        next update."""
+        it = _check_it(it)
+        start, every, end = self.at(FLOOR_START), self.every(FLOOR_EVERY), self.at(FLOOR_RAMP_END)
+        if it < start:
+            return 0.0
+        last = start + (it - start) // every * every    # the last update at or before it
+        span = max(end - start, 1)
+        frac = min(max((last - start) / span, 0.0), 1.0)
+        return FLOOR_MIN + (FLOOR_MAX - FLOOR_MIN) * frac
+
+    def opacity_floor_changes(self, it):
+        """True when the floor takes a new value at this iteration (re-invert the logits then)."""
+        return it >= 1 and self.opacity_floor(it) != self.opacity_floor(it - 1)
+
+    # ------------------------------------------------------------------ pruning
+    def is_prune_step(self, it):
+        """Every 500 iterations after 4000 [3000] (4500, 5000, ...)."""
+        it = _check_it(it)
+        after, every = self.at(self._pick(PRUNE_AFTER)), self.every(PRUNE_EVERY)
+        return it > after and (it - after) % every == 0
+
+    def is_hard_prune_step(self, it):
+        """The hard prune of the paper (iteration 5000)."""
+        return _check_it(it) == self.at(HARD_PRUNE_AT)
+
+    def prune_threshold(self, it):
+        """0.235, plus 0.01 for every 500 iterations completed after 5000."""
+        it = _check_it(it)
+        start, every = self.at(HARD_PRUNE_AT), self.every(PRUNE_EVERY)
+        steps = max(0, (it - start) // every) if it >= start else 0
+        return PRUNE_THRESHOLD + PRUNE_THRESHOLD_STEP * steps
+
+    def prune_max_size(self):
+        """Projected size (px) above which a triangle is pruned."""
+        return self._pick(PRUNE_MAX_SIZE_PX)
+
+    # ------------------------------------------------------------------ densification
+    def is_densify_step(self, it):
+        """Every 500 iterations strictly inside (500, 13000) [(1000, 25000)]."""
+        it = _check_it(it)
+        lo, hi = (self.at(x) for x in self._pick(DENSIFY_WINDOW))
+        every = self.every(DENSIFY_EVERY)
+        return lo < it < hi and (it - lo) % every == 0
+
+    def densify_count(self, num_vertices, cap=DENSIFY_CAP):
+        """Triangles to split: ``n = min(cap, growth * V) - V`` (growth 1.23 [1.27]), rounded
+        down and never negative."""
+        v = int(num_vertices)
+        if v < 0:
+            raise ValueError(f"num_vertices: expected >= 0, got {num_vertices!r}")
+        target = min(float(cap), self._pick(DENSIFY_GROWTH) * v)
+        return max(0, int(math.floor(target)) - v)
+
+    def densify_always_largest(self):
+        return self._pick(DENSIFY_ALWAYS_LARGEST)
+
+    # ------------------------------------------------------------------ losses, supersampling
+    def opacity_reg_weight(self, it):
+        return OPACITY_REG_WEIGHT if _check_it(it) < self.at(OPACITY_REG_UNTIL) else 0.0
+
+    def normal_loss_weight(self, it):
+        return self._pick(NORMAL_LOSS_WEIGHT) if _check_it(it) > self.at(NORMAL_LOSS_AFTER) else 0.0
+
+    def supersample(self, it):
+        """Render at s x resolution: 1, 2 from iteration 20000, 4 from 25000."""
+        it = _check_it(it)
+        s = 1
+        for start, factor in SUPERSAMPLE_STEPS:
+            if it >= self.at(start):
+                s = factor
+        return s
+
+    def state(self, it):
+        """Every schedule at one iteration, as a dict."""
+        return dict(iteration=int(it), sh_degree=self.sh_degree(it), sigma=self.sigma(it),
+                    opacity_floor=self.opacity_floor(it), floor_changes=self.opacity_floor_changes(it),
+                    prune=self.is_prune_step(it), hard_prune=self.is_hard_prune_step(it),
+                    prune_threshold=self.prune_threshold(it), densify=self.is_densify_step(it),
+                    supersample=self.supersample(it), **{f"lr_{k}": v for k, v in self.learning_rates(it).items()})
+
+
+# ---------------------------------------------------------------------- opacity mapping
+
+def sigmoid(w):
+    w = np.asarray(w, np.float64)
+    return np.where(w >= 0, 1.0 / (1.0 + np.exp(-np.abs(w))), np.exp(-np.abs(w)) / (1.0 + np.exp(-np.abs(w))))
+
+
+def opacity_from_logit(w, m):
+    """o = m + (1 - m) * sigmoid(w)."""
+    return m + (1.0 - m) * sigmoid(w)
+
+
+def logit_from_opacity(o, m, eps=1e-6):
+    """Inverse of :func:`opacity_from_logit`. Opacities at or below the floor (or at 1) have no
+    finite logit: ``(o - m) / (1 - m)`` is clamped to ``[eps, 1 - eps]`` first, so they come
+    back just above the floor (or just below 1)."""
+    if not 0.0 <= m < 1.0:
+        raise ValueError(f"opacity floor m must be in [0, 1), got {m!r}")
+    q = (np.asarray(o, np.float64) - m) / (1.0 - m)
+    q = np.clip(q, eps, 1.0 - eps)
+    return np.log(q) - np.log1p(-q)
+
+
+def reinvert_logits(w, m_old, m_new, eps=1e-6):
+    """New logits that keep each vertex's opacity when the floor goes from ``m_old`` to
+    ``m_new``: ``m_new + (1 - m_new) sigmoid(w_new) = m_old + (1 - m_old) sigmoid(w)``.
+    Vertices below the new floor end just above it (see :func:`logit_from_opacity`)."""
+    return logit_from_opacity(opacity_from_logit(w, m_old), m_new, eps)
