@@ -1,0 +1,53 @@
+// SSIM stage 4: per pixel, the column blur of ssim_grad_h's rows gives (B a, B b, B c) and
+// v_image = 0.8 sign(x - y) / N - 0.2 (B a + 2 x B b + y B c) / N, N = 3 H W.
+#import dispatch
+
+struct SsimParams {
+    width: u32,
+    height: u32,
+    num_pixels: u32,
+    inv_n: f32,      // 1 / (3 * num_pixels)
+}
+
+// The normalised 11-tap Gaussian (sigma 1.5) of 3DGS, rounded to f32.
+const GAUSS = array<f32, 11>(0.001028380123898387, 0.0075987582094967365, 0.036000773310661316,
+    0.10936068743467331, 0.21300554275512695, 0.26601171493530273, 0.21300554275512695,
+    0.10936068743467331, 0.036000773310661316, 0.0075987582094967365, 0.001028380123898387);
+
+@group(0) @binding(0) var<uniform> sp: SsimParams;
+@group(0) @binding(1) var<storage, read> image: array<f32>;          // [H, W, 3]
+@group(0) @binding(2) var<storage, read> target_image: array<f32>;   // [H, W, 3]
+@group(0) @binding(3) var<storage, read> grows: array<vec4<f32>>;    // [H, W, 3]
+@group(0) @binding(4) var<storage, read_write> v_image: array<f32>;  // [H, W, 3]
+
+@compute @workgroup_size(256)
+fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+        @builtin(local_invocation_index) li: u32) {
+    let pix = linear_group(wid, nwg) * 256u + li;
+    if (pix >= sp.num_pixels) {
+        return;
+    }
+    var g = GAUSS;
+    let col = pix % sp.width;
+    let row = pix / sp.width;
+    let lo = max(i32(row) - 5, 0);
+    let hi = min(i32(row) + 5, i32(sp.height) - 1);
+    var sa = vec4<f32>(0.0);
+    var sb = vec4<f32>(0.0);
+    var sc = vec4<f32>(0.0);
+    for (var i = lo; i <= hi; i++) {
+        let w = g[u32(i - i32(row) + 5)];
+        let q = 3u * (u32(i) * sp.width + col);
+        sa += w * grows[q];
+        sb += w * grows[q + 1u];
+        sc += w * grows[q + 2u];
+    }
+    let p = 3u * pix;
+    let x = vec3<f32>(image[p], image[p + 1u], image[p + 2u]);
+    let y = vec3<f32>(target_image[p], target_image[p + 1u], target_image[p + 2u]);
+    let v_ssim = sa.xyz + 2.0 * x * sb.xyz + y * sc.xyz;
+    let v = (0.8 * sign(x - y) - 0.2 * v_ssim) * sp.inv_n;
+    v_image[p] = v.x;
+    v_image[p + 1u] = v.y;
+    v_image[p + 2u] = v.z;
+}

@@ -1,0 +1,44 @@
+// SSIM stage 5: one workgroup sums ssim_loss's per-workgroup partials in a fixed order
+// (strided, then a tree) and writes (loss, l1, ssim, 0) with the means over N = 3 H W.
+struct SsimParams {
+    width: u32,
+    height: u32,
+    num_pixels: u32,
+    inv_n: f32,      // 1 / (3 * num_pixels)
+}
+
+// The normalised 11-tap Gaussian (sigma 1.5) of 3DGS, rounded to f32.
+const GAUSS = array<f32, 11>(0.001028380123898387, 0.0075987582094967365, 0.036000773310661316,
+    0.10936068743467331, 0.21300554275512695, 0.26601171493530273, 0.21300554275512695,
+    0.10936068743467331, 0.036000773310661316, 0.0075987582094967365, 0.001028380123898387);
+
+@group(0) @binding(0) var<uniform> sp: SsimParams;
+@group(0) @binding(1) var<storage, read> partials: array<vec2<f32>>;   // [ceil(H W / 256)]
+@group(0) @binding(2) var<storage, read_write> result: array<f32>;     // [4]
+
+var<workgroup> red: array<vec2<f32>, 256>;
+
+@compute @workgroup_size(256)
+fn main(@builtin(local_invocation_index) li: u32) {
+    let n = (sp.num_pixels + 255u) / 256u;
+    var s = vec2<f32>(0.0);
+    for (var i = li; i < n; i += 256u) {
+        s += partials[i];
+    }
+    red[li] = s;
+    workgroupBarrier();
+    for (var off = 128u; off > 0u; off = off / 2u) {
+        if (li < off) {
+            red[li] = red[li] + red[li + off];
+        }
+        workgroupBarrier();
+    }
+    if (li == 0u) {
+        let l1 = red[0].x * sp.inv_n;
+        let ssim = red[0].y * sp.inv_n;
+        result[0] = 0.8 * l1 + 0.2 * (1.0 - ssim);
+        result[1] = l1;
+        result[2] = ssim;
+        result[3] = 0.0;
+    }
+}
