@@ -30,6 +30,6 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     }
     let s = seg_run(sp, i, end, key);
     for (var w = 0u; w < sp.width; w++) {
-        out[key * sp.width + w] = s[w] + out[key * sp.width + w];
+        out[key * sp.width + w] = seg_get(s, w) + out[key * sp.width + w];
     }
 }

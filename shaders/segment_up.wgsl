@@ -22,6 +22,6 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     let s = seg_run(sp, first, min(first + CHUNK, sp.n), key);
     keys_out[c] = key;
     for (var w = 0u; w < sp.width; w++) {
-        vals_out[c * sp.width + w] = s[w];
+        vals_out[c * sp.width + w] = seg_get(s, w);
     }
 }

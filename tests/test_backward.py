@@ -233,7 +233,7 @@ def test_backward_rejects_bad_cotangents(renderer):
 
 
 def test_backward_in_passes_is_identical(renderer, monkeypatch):
-    """rasterize_backward split into passes of a few rounds (as it is beyond 4096 pairs
+    """rasterize_backward split into passes of a few rounds (as it is beyond 2048 pairs
     per tile, for lavapipe's loop limit) gives bit-identical gradients."""
     from tsplus_wgpu import backward as bw
     model, cam = f32_exact(*random_scene(8, 48, 40, sheets=5, points_per_sheet=20, sh_k=4))
@@ -243,6 +243,6 @@ def test_backward_in_passes_is_identical(renderer, monkeypatch):
     one = renderer.backward(res, vi, vt)
     monkeypatch.setattr(bw, "ROUNDS_PER_PASS", 2)
     many = renderer.backward(res, vi, vt)
-    assert int((res.tile_ranges()[:, 1] - res.tile_ranges()[:, 0]).max()) > 4 * 2 * 3
+    assert int((res.tile_ranges()[:, 1] - res.tile_ranges()[:, 0]).max()) > bw.PAIRS_PER_ROUND * 2 * 3
     for name in GROUPS:
         assert np.array_equal(getattr(one, name), getattr(many, name)), name

@@ -3,7 +3,7 @@
 Stages, each a ``shaders/<stage>.wgsl`` with a class of the same name:
 
 1. ``backward_prepare`` (per pixel): the blend's starting state; ``rasterize_backward``
-   (per tile, in passes of at most 4096 pairs per tile): front-to-back replay of the forward blend up to each
+   (per tile, in passes of at most 2048 pairs per tile): front-to-back replay of the forward blend up to each
    pixel's last contributing pair; per (triangle, tile) pair the 19 sufficient statistics
    of ``common/grad_stats.wgsl``, summed over the tile's pixels in a fixed order.
 2. pair reduce: the pairs sorted by triangle with the stable :class:`RadixSort` (so each
@@ -40,10 +40,11 @@ def _groups(n, per):
     return max(1, (int(n) + per - 1) // per)
 
 
-#: Rounds (of 4 pairs) per dispatch of rasterize_backward: about 45 loop iterations per
-#: round and invocation, under lavapipe's limit of 65535 per invocation.
-ROUNDS_PER_PASS = 1024
-PAIRS_PER_ROUND = 4
+#: Rounds (of 8 pairs) per dispatch of rasterize_backward: at most about 175 loop
+#: iterations per round and invocation (8 pairs, then 5 sums of 32), so about 45,000 per
+#: dispatch, under lavapipe's limit of 65535 per invocation.
+ROUNDS_PER_PASS = 256
+PAIRS_PER_ROUND = 8
 
 
 class BackwardPrepare(Stage):
@@ -58,15 +59,16 @@ class BackwardPrepare(Stage):
 class RasterizeBackward(Stage):
     stage = "rasterize_backward"
 
-    def __call__(self, enc, params, ranges, pair_tris, tris, v_out, state, partials, tiles_x, tiles_y,
+    def __call__(self, enc, params, ranges, pair_tris, tris, v_out, state, partials, work, tiles_x, tiles_y,
                  max_range, profiler=None):
         enc.clear_buffer(partials)
+        enc.clear_buffer(work)
         rounds = (int(max_range) + PAIRS_PER_ROUND - 1) // PAIRS_PER_ROUND
         for r0 in range(0, max(rounds, 1), ROUNDS_PER_PASS):
             pp = self.uniform("PassParams", round_begin=r0, round_end=r0 + ROUNDS_PER_PASS)
             self.dispatch(enc, (tiles_x, tiles_y, 1),
                           dict(params=params, pp=pp, ranges=ranges, pair_tris=pair_tris, tris=tris, v_out=v_out,
-                               state=state, partials=partials), profiler)
+                               state=state, partials=partials, work=work), profiler)
 
 
 class SegmentUp(Stage):
@@ -96,7 +98,7 @@ class SegmentSum:
         self.down = SegmentDown(ctx)
 
     def record(self, enc, keys, index, vals, n, width, out, profiler=None, label=None):
-        assert 1 <= width <= 5
+        assert width in (1, 2, 5)
         enc.clear_buffer(out)
         if n == 0:
             return
@@ -200,7 +202,8 @@ class BackwardPass:
         pvals = c.upload(np.arange(P, dtype=np.uint32), "pair_ids")
         buf = dict(v_out=c.upload(v_out, "v_out"), partials=c.buffer(4 * NSTAT * P, "partials"),
                    tri_stats=c.buffer(4 * NSTAT * m, "tri_stats"), vertex_sums=c.buffer(32 * n, "vertex_sums"),
-                   corner_grads=c.buffer(32 * 3 * m, "corner_grads"), state=c.buffer(16 * h * w, "backward_state"))
+                   corner_grads=c.buffer(32 * 3 * m, "corner_grads"), state=c.buffer(16 * h * w, "backward_state"),
+                   work=c.buffer(16, "backward_work"))
         # the longest tile list sizes the passes of rasterize_backward (a small readback)
         rg = c.read(b["ranges"], np.uint32, 2 * tx * ty).reshape(-1, 2).astype(np.int64)
         max_range = int((rg[:, 1] - rg[:, 0]).max(initial=0))
@@ -210,7 +213,7 @@ class BackwardPass:
         enc = c.device.create_command_encoder()
         self.prepare(enc, params, b["image"], b["final_t"], b["n_contrib"], buf["v_out"], buf["state"], h * w, prof)
         self.raster(enc, params, b["ranges"], b["pair_tris"], b["tris"], buf["v_out"], buf["state"], buf["partials"],
-                    tx, ty, max_range, prof)
+                    buf["work"], tx, ty, max_range, prof)
         submit(enc, "rasterize_backward"); enc = c.device.create_command_encoder()
         # each triangle's pairs together, in tile order (stable sort by triangle), then summed
         enc.copy_buffer_to_buffer(b["pair_tris"], 0, pkeys, 0, 4 * P)

@@ -14,33 +14,53 @@
 
 struct SegParams {
     n: u32,        // elements at this level
-    width: u32,    // vec4s per element (at most MAX_WIDTH)
+    width: u32,    // vec4s per element: 1, 2 or 5
     gather: u32,   // 1: level 0, values through index
     top: u32,      // 1: coarsest level (n <= CHUNK), every run start writes its whole run
 }
 
 const CHUNK: u32 = 64u;
-const MAX_WIDTH: u32 = 5u;
 
-fn seg_value(sp: SegParams, i: u32, w: u32) -> vec4<f32> {
-    var e = i;
-    if (sp.gather != 0u) {
-        e = index[i];
-    }
-    return vals_in[e * sp.width + w];
+struct Sum5 {
+    a: vec4<f32>,
+    b: vec4<f32>,
+    c: vec4<f32>,
+    d: vec4<f32>,
+    e: vec4<f32>,
 }
 
-// Sum of the run of `key` from element i (inclusive) up to `end` (exclusive).
-fn seg_run(sp: SegParams, i: u32, end: u32, key: u32) -> array<vec4<f32>, 5> {
-    var s: array<vec4<f32>, 5>;
-    var live = true;
+// Sum of the run of `key` from element i (inclusive) up to `end` (exclusive), in order.
+// (Five named sums rather than an indexed array: no private-memory indexing.)
+fn seg_run(sp: SegParams, i: u32, end: u32, key: u32) -> Sum5 {
+    var s = Sum5(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
     for (var e = i; e < end; e++) {
-        live = live && keys_in[e] == key;
-        if (live) {
-            for (var w = 0u; w < sp.width; w++) {
-                s[w] += seg_value(sp, e, w);
-            }
+        if (keys_in[e] != key) {
+            break;
+        }
+        var base = e;
+        if (sp.gather != 0u) {
+            base = index[e];
+        }
+        base *= sp.width;
+        s.a += vals_in[base];
+        if (sp.width > 1u) {
+            s.b += vals_in[base + 1u];
+        }
+        if (sp.width > 2u) {
+            s.c += vals_in[base + 2u];
+            s.d += vals_in[base + 3u];
+            s.e += vals_in[base + 4u];
         }
     }
     return s;
+}
+
+fn seg_get(s: Sum5, w: u32) -> vec4<f32> {
+    switch (w) {
+        case 0u: { return s.a; }
+        case 1u: { return s.b; }
+        case 2u: { return s.c; }
+        case 3u: { return s.d; }
+        default: { return s.e; }
+    }
 }
