@@ -218,3 +218,10 @@ def test_no_adapter_message(monkeypatch):
     monkeypatch.setattr(gpu, "list_adapters", lambda *a, **k: [])
     with pytest.raises(gpu.NoAdapterError, match="apt-get install -y mesa-vulkan-drivers"):
         gpu.select_adapter()
+
+
+def test_too_wide_image_is_rejected(renderer):
+    model, _ = good()
+    wide = look_at_camera(16 * 16384 + 1, 1)
+    with pytest.raises(ValueError, match="camera: .* is too large"):
+        renderer.forward(model, wide, 1.0)

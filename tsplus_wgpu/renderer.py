@@ -16,6 +16,7 @@ from .types import Camera, TriangleModel
 
 TILE = 16
 TRI2D_FLOATS = 24
+MAX_TILES_PER_ROW = 16384
 
 
 class ForwardResult:
@@ -186,8 +187,10 @@ class Renderer:
         for name, nbytes in (("image", 12 * h * w), ("triangles", 12 * m), ("sh", 12 * n * model.sh_size),
                              ("projected triangles", 4 * TRI2D_FLOATS * m)):
             c.check_size(name, nbytes)
-        if max(tx, ty) > c.limits["max-compute-workgroups-per-dimension"]:
-            raise ValueError(f"camera: {w}x{h} needs more tiles per row/column than this device can dispatch")
+        # binning loops over one row of tiles per invocation (lavapipe's loop budget)
+        if tx > MAX_TILES_PER_ROW or ty > c.limits["max-compute-workgroups-per-dimension"]:
+            raise ValueError(f"camera: {w}x{h} is too large; width up to {16 * MAX_TILES_PER_ROW} px and height up "
+                             f"to {16 * c.limits['max-compute-workgroups-per-dimension']} px are supported")
 
         # Timing: timestamp queries per pass where supported; otherwise each stage is
         # submitted on its own and timed on the host.
