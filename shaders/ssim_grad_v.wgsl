@@ -1,18 +1,8 @@
 // SSIM stage 4: per pixel, the column blur of ssim_grad_h's rows gives (B a, B b, B c) and
 // v_image = 0.8 sign(x - y) / N - 0.2 (B a + 2 x B b + y B c) / N, N = 3 H W.
 #import dispatch
+#import ssim
 
-struct SsimParams {
-    width: u32,
-    height: u32,
-    num_pixels: u32,
-    inv_n: f32,      // 1 / (3 * num_pixels)
-}
-
-// The normalised 11-tap Gaussian (sigma 1.5) of 3DGS, rounded to f32.
-const GAUSS = array<f32, 11>(0.001028380123898387, 0.0075987582094967365, 0.036000773310661316,
-    0.10936068743467331, 0.21300554275512695, 0.26601171493530273, 0.21300554275512695,
-    0.10936068743467331, 0.036000773310661316, 0.0075987582094967365, 0.001028380123898387);
 
 @group(0) @binding(0) var<uniform> sp: SsimParams;
 @group(0) @binding(1) var<storage, read> image: array<f32>;          // [H, W, 3]

@@ -1,16 +1,6 @@
 // SSIM stage 5: one workgroup sums ssim_loss's per-workgroup partials in a fixed order
 // (strided, then a tree) and writes (loss, l1, ssim, 0) with the means over N = 3 H W.
-struct SsimParams {
-    width: u32,
-    height: u32,
-    num_pixels: u32,
-    inv_n: f32,      // 1 / (3 * num_pixels)
-}
-
-// The normalised 11-tap Gaussian (sigma 1.5) of 3DGS, rounded to f32.
-const GAUSS = array<f32, 11>(0.001028380123898387, 0.0075987582094967365, 0.036000773310661316,
-    0.10936068743467331, 0.21300554275512695, 0.26601171493530273, 0.21300554275512695,
-    0.10936068743467331, 0.036000773310661316, 0.0075987582094967365, 0.001028380123898387);
+#import ssim
 
 @group(0) @binding(0) var<uniform> sp: SsimParams;
 @group(0) @binding(1) var<storage, read> partials: array<vec2<f32>>;   // [ceil(H W / 256)]
