@@ -40,10 +40,10 @@ def _groups(n, per):
     return max(1, (int(n) + per - 1) // per)
 
 
-#: Rounds (of 8 pairs) per dispatch of rasterize_backward: at most about 175 loop
-#: iterations per round and invocation (8 pairs, then 5 sums of 32), so about 45,000 per
-#: dispatch, under lavapipe's limit of 65535 per invocation.
-ROUNDS_PER_PASS = 256
+#: Rounds (of 8 pairs) per dispatch of rasterize_backward: at most 25 loop iterations per
+#: round and invocation (8 pairs, then a sum over at most 16 invocations' entries), so
+#: about 51,200 per dispatch, under lavapipe's limit of 65535 per invocation.
+ROUNDS_PER_PASS = 2048
 PAIRS_PER_ROUND = 8
 
 
