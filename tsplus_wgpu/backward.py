@@ -28,6 +28,7 @@ import time
 import weakref
 
 import numpy as np
+import wgpu
 
 from .gpu import Profiler, Stage
 from .reference_backward import Grads, check_cotangents
@@ -158,12 +159,30 @@ class BackwardPass:
         self.vertex = VertexBackward(c)
         self.corner_sort = RadixSort(c, renderer.scratch, "corner_sort")
 
-    def run(self, result, v_image, v_transmittance=None, profile=False, read=True):
+    def run(self, result, v_image, v_transmittance=None, profile=False, read=True, out=None):
+        """The backward pass of ``result``.
+
+        Args:
+            v_image: ``[H, W, 3]`` array, or a device buffer already in the kernel's layout
+                ``[H * W]`` vec4 (dL/d rgb, dL/d T) (then ``v_transmittance`` must be None).
+            read: read the gradients back (``Grads``); with False return the timings only.
+            out: optional dict of device buffers ``v_positions`` (``[N, 3]`` f32), ``v_sh``
+                (``[N, K, 3]``), ``v_opacity`` (``[N]``) to write the gradients into (reused
+                between calls). With ``read=False`` nothing is read back and nothing waits.
+        """
         r = self.renderer
         c = self.ctx
         cam, model = result.camera, result.model
         h, w = cam.height, cam.width
-        vi, vt = check_cotangents(v_image, v_transmittance, h, w)
+        v_out_buffer = None
+        if isinstance(v_image, wgpu.GPUBuffer):
+            if v_transmittance is not None:
+                raise ValueError("v_transmittance: must be None when v_image is a device buffer (its .w lanes)")
+            if v_image.size < 16 * h * w:
+                raise ValueError(f"v_image: buffer holds {v_image.size} bytes, needs {16 * h * w} ([H*W] vec4)")
+            v_out_buffer = v_image
+        else:
+            vi, vt = check_cotangents(v_image, v_transmittance, h, w)
         m, n, k = model.num_triangles, model.num_vertices, model.sh_size
         tx, ty, _ = r._tiles(cam)
         P = result.num_pairs
@@ -183,24 +202,32 @@ class BackwardPass:
                 times[label] = times.get(label, 0.0) + (now - submit.t) * 1e3
                 submit.t = now
 
-        v_out = np.zeros((h * w, 4), np.float32)
-        v_out[:, :3] = vi.reshape(-1, 3)
-        v_out[:, 3] = vt.reshape(-1)
-        out = dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh"),
-                   v_opacity=c.buffer(4 * n, "v_opacity"))
+        if v_out_buffer is None:
+            v_out = np.zeros((h * w, 4), np.float32)
+            v_out[:, :3] = vi.reshape(-1, 3)
+            v_out[:, 3] = vt.reshape(-1)
+        given = out is not None
+        if given:
+            for key, nbytes in (("v_positions", 12 * n), ("v_sh", 12 * n * k), ("v_opacity", 4 * n)):
+                if key not in out or out[key].size < nbytes:
+                    raise ValueError(f"out[{key!r}]: missing or smaller than {nbytes} bytes")
+            out = {key: out[key] for key in ("v_positions", "v_sh", "v_opacity")}
+        else:
+            out = dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh"),
+                       v_opacity=c.buffer(4 * n, "v_opacity"))
         if P == 0:   # nothing reached the image: every gradient is zero (cheap for empty views)
             enc = c.device.create_command_encoder()
             for buf_ in out.values():
                 enc.clear_buffer(buf_)
             c.queue.submit([enc.finish()])
-            return self._finish(out, n, k, {}, {}, read)
-        dev = r.upload_model(model)
+            return self._finish(out, n, k, {}, {}, read, wait=not given)
+        dev = result.model_buffers if getattr(result, "model_buffers", None) is not None else r.upload_model(model)
         params = r._frame_params(model, cam, result.sigma, np.asarray(result.background), result.near, P)
         keys = c.buffer(12 * m, "corner_keys")
         vals = c.upload(np.arange(3 * m, dtype=np.uint32), "corner_ids")
         pkeys = c.buffer(4 * P, "pair_keys")
         pvals = c.upload(np.arange(P, dtype=np.uint32), "pair_ids")
-        buf = dict(v_out=c.upload(v_out, "v_out"), partials=c.buffer(4 * NSTAT * P, "partials"),
+        buf = dict(v_out=v_out_buffer if v_out_buffer is not None else c.upload(v_out, "v_out"), partials=c.buffer(4 * NSTAT * P, "partials"),
                    tri_stats=c.buffer(4 * NSTAT * m, "tri_stats"), vertex_sums=c.buffer(32 * n, "vertex_sums"),
                    corner_grads=c.buffer(32 * 3 * m, "corner_grads"), state=c.buffer(16 * h * w, "backward_state"),
                    work=c.buffer(16, "backward_work"))
@@ -235,12 +262,13 @@ class BackwardPass:
         submit(enc, "vertex_backward")
         if prof is not None:
             times = prof.resolve()
-        return self._finish(out, n, k, buf, times, read)
+        return self._finish(out, n, k, buf, times, read, wait=not given)
 
-    def _finish(self, out, n, k, buf, times, read):
+    def _finish(self, out, n, k, buf, times, read, wait=True):
         c = self.ctx
         if not read:
-            c.wait()
+            if wait:
+                c.wait()
             return times
         grads = Grads(v_positions=c.read(out["v_positions"], np.float32, 3 * n).reshape(n, 3),
                       v_sh=c.read(out["v_sh"], np.float32, 3 * n * k).reshape(n, k, 3),
@@ -253,15 +281,16 @@ class BackwardPass:
 _PASSES = weakref.WeakKeyDictionary()
 
 
-def backward(renderer, result, v_image, v_transmittance=None, profile=False) -> Grads:
+def backward(renderer, result, v_image, v_transmittance=None, profile=False, read=True, out=None) -> Grads:
     """Gradients of ``sum(v_image * image) + sum(v_transmittance * T)`` of a forward pass.
 
     Args:
         renderer: the :class:`Renderer` that produced ``result``.
         result: a :class:`ForwardResult` (its device buffers are read, not changed).
-        v_image: ``[H, W, 3]`` dL/d image.
+        v_image: ``[H, W, 3]`` dL/d image, or a device buffer ``[H * W]`` vec4 (dL/d rgb, dL/d T).
         v_transmittance: ``[H, W]`` dL/d final transmittance, or None.
         profile: time each stage (``grads.timings``, ms).
+        read, out: see :meth:`BackwardPass.run` (device-resident gradients without readback).
 
     Returns:
         :class:`Grads` with ``v_positions [N, 3]``, ``v_sh [N, K, 3]``, ``v_opacity [N]``
@@ -275,4 +304,4 @@ def backward(renderer, result, v_image, v_transmittance=None, profile=False) -> 
     bp = _PASSES.get(renderer)
     if bp is None:
         bp = _PASSES[renderer] = BackwardPass(renderer)
-    return bp.run(result, v_image, v_transmittance, profile)
+    return bp.run(result, v_image, v_transmittance, profile, read=read, out=out)

@@ -12,6 +12,7 @@ from . import reference
 from .gpu import GpuContext, Profiler
 from .stages import (BinCount, BinEmit, BinItems, BinRows, MaxReduce, PrefixSum, ProjectTriangles, RadixSort,
                      RasterizeForward, Scratch, ShToColor, TileRanges)
+from .device_model import DeviceModel
 from .types import Camera, TriangleModel
 
 TILE = 16
@@ -23,7 +24,8 @@ class ForwardResult:
     """Output of :meth:`Renderer.forward`. Device buffers are kept for the backward pass;
     the numpy views below are read back lazily, once each."""
 
-    def __init__(self, renderer, camera, model, sigma, background, near, buffers, num_pairs, timings):
+    def __init__(self, renderer, camera, model, sigma, background, near, buffers, num_pairs, timings,
+                 model_buffers=None):
         self.renderer = renderer
         self.camera = camera
         self.model = model
@@ -34,6 +36,8 @@ class ForwardResult:
         self.num_pairs = num_pairs
         self.timings = timings     # {stage: ms} when profiled, else {}
         self._cache = {}
+        #: the model's device buffers the forward read (the backward reuses them, no re-upload)
+        self.model_buffers = model_buffers
 
     def _read(self, name, dtype, count):
         key = (name, np.dtype(dtype).str)
@@ -163,7 +167,8 @@ class Renderer:
         """Render ``model`` seen by ``camera``.
 
         Args:
-            model: :class:`TriangleModel` with at least one triangle.
+            model: :class:`TriangleModel` with at least one triangle, or a
+                :class:`~tsplus_wgpu.DeviceModel` already on this renderer's device (no upload).
             camera: :class:`Camera`.
             sigma: window sharpness (> 0); 1 is soft, 1e-4 is nearly a hard triangle.
             background: RGB added where light passes through (weight T).
@@ -174,8 +179,11 @@ class Renderer:
             :class:`ForwardResult` with ``image [H, W, 3]``, ``transmittance [H, W]``,
             ``max_weight [M]`` (read back on first access).
         """
-        if not isinstance(model, TriangleModel):
-            raise ValueError(f"model: expected tsplus_wgpu.TriangleModel, got {type(model).__name__}")
+        if isinstance(model, DeviceModel):
+            if model.ctx is not self.ctx:
+                raise ValueError("model: its buffers belong to another device (GpuContext)")
+        elif not isinstance(model, TriangleModel):
+            raise ValueError(f"model: expected tsplus_wgpu.TriangleModel or DeviceModel, got {type(model).__name__}")
         camera = _as_camera(camera)
         sigma, bg, near = reference._check_args(sigma, background, near)
         m, n = model.num_triangles, model.num_vertices
@@ -213,7 +221,7 @@ class Renderer:
         def read_u32(buf):
             return int(c.read(buf, np.uint32, 1)[0])
 
-        dev = self.upload_model(model)
+        dev = model.buffers if isinstance(model, DeviceModel) else self.upload_model(model)
         params = self._frame_params(model, camera, sigma, bg, near, 0, 0)
         b = dict(
             colors=c.buffer(16 * n, "colors"),
@@ -285,11 +293,13 @@ class Renderer:
         flush("rasterize_forward", force=True)
         if prof is not None:
             times = prof.resolve()
-        return ForwardResult(self, camera, model, sigma, tuple(bg), near, b, num_pairs, times)
+        return ForwardResult(self, camera, model, sigma, tuple(bg), near, b, num_pairs, times, model_buffers=dev)
 
-    def backward(self, result, v_image, v_transmittance=None):
+    def backward(self, result, v_image, v_transmittance=None, read=True, out=None):
         """Gradients of ``sum(v_image * image) + sum(v_transmittance * T)`` of ``result``
         (see :func:`tsplus_wgpu.backward.backward`): ``Grads`` with ``v_positions [N, 3]``,
-        ``v_sh [N, K, 3]``, ``v_opacity [N]``. Portable and deterministic."""
+        ``v_sh [N, K, 3]``, ``v_opacity [N]``. Portable and deterministic. ``v_image`` may be a
+        device buffer ``[H * W]`` vec4 (dL/d rgb, dL/d T); with ``out`` (device buffers) and
+        ``read=False`` the gradients stay on the device."""
         from .backward import backward
-        return backward(self, result, v_image, v_transmittance)
+        return backward(self, result, v_image, v_transmittance, read=read, out=out)
