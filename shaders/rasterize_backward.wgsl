@@ -10,7 +10,7 @@
 // rounds can be split over several dispatches (PassParams).
 //
 // Deterministic and atomic-free for floats. Pairs are taken RB at a time (a round); the
-// triangles are staged as raw vec4s (the layout of Tri2D), the colour records read only
+// triangles are staged as 5 raw vec4s, the window's 9 numbers first, the colour read only
 // where some pixel of the invocation reaches the triangle (every load from workgroup
 // memory is costly per instruction on CPU drivers). Per pair, an invocation whose pixels
 // took it sums its 16 pixels' quantities (colour weight x v per channel, dL/d ratio for
@@ -47,11 +47,11 @@ struct PassParams {
 
 const RB: u32 = 8u;          // pairs per round (<= THREADS)
 const THREADS: u32 = 16u;    // one invocation per column of the tile: 16 pixels, 4 groups of 4
-const REC: u32 = 6u;         // vec4s per staged triangle (Tri2D):
-//   [0] s.x, s.y, opacity, tau   [1] g0, g1   [2] g2, depth, inradius
-//   [3] colour at s              [4] d colour / dx   [5] d colour / dy
+const REC: u32 = 5u;         // vec4s per staged triangle, the window first (read for every
+//   pixel-pair), the rest only where some pixel is inside (c: colour at s, cx, cy: d colour / dx, dy):
+//   [0] s.x, s.y, g0   [1] g1, g2   [2] tau, opacity, c.x, c.y   [3] c.z, cx   [4] cy, s.y
 
-var<workgroup> staged: array<vec4<f32>, 96>;     // [2, RB, REC] double-buffered
+var<workgroup> staged: array<vec4<f32>, 80>;     // [2, RB, REC] double-buffered
 var<workgroup> red: array<vec4<f32>, 512>;       // [RB, THREADS, 4] per-invocation sums
 var<workgroup> touched: array<atomic<u32>, 16>;  // [2, RB] bit i: invocation i wrote sums
 var<workgroup> max_last: atomic<u32>;
@@ -193,15 +193,18 @@ fn evals4(q: Px4, lo: u32, hi: u32) -> u32 {
 // Stage the sorted pair k (if it exists) into slot `slot` of `staged`; clear its mask.
 fn stage(slot: u32, k: u32, end: u32) {
     if (k < end) {
-        let base = REC * pair_tris[k];
+        let base = 6u * pair_tris[k];   // Tri2D: (s, opacity, tau), (g0, g1), (g2, depth, inradius), c, cx, cy
         let t0 = tris[base];
-        staged[REC * slot] = t0;
-        staged[REC * slot + 1u] = tris[base + 1u];
-        staged[REC * slot + 2u] = tris[base + 2u];
+        let t1 = tris[base + 1u];
+        let t2 = tris[base + 2u];
         let c = tris[base + 3u];
-        staged[REC * slot + 3u] = vec4<f32>(c.xyz, t0.y);
-        staged[REC * slot + 4u] = tris[base + 4u];
-        staged[REC * slot + 5u] = tris[base + 5u];
+        let cx = tris[base + 4u];
+        let cy = tris[base + 5u];
+        staged[REC * slot] = vec4<f32>(t0.xy, t1.xy);
+        staged[REC * slot + 1u] = vec4<f32>(t1.zw, t2.xy);
+        staged[REC * slot + 2u] = vec4<f32>(t0.w, t0.z, c.xy);
+        staged[REC * slot + 3u] = vec4<f32>(c.z, cx.xyz);
+        staged[REC * slot + 4u] = vec4<f32>(cy.xyz, t0.y);
     }
     atomicStore(&touched[slot], 0u);
 }
@@ -256,9 +259,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
             let w1 = staged[REC * (buf + j) + 1u];
             let w2 = staged[REC * (buf + j) + 2u];
             let dx = x - w0.x;
-            let a = vec3<f32>(1.0 + w1.x * dx, 1.0 + w1.z * dx, 1.0 + w2.x * dx);
-            let gy = vec3<f32>(w1.y, w1.w, w2.y);
-            let tau = vec4<f32>(w0.w);
+            let a = vec3<f32>(1.0 + w0.z * dx, 1.0 + w1.x * dx, 1.0 + w1.z * dx);
+            let gy = vec3<f32>(w0.w, w1.y, w1.w);
+            let tau = vec4<f32>(w2.x);
             let zero = vec4<f32>(0.0);
             let index = vec4<u32>(b * RB + j);
             let d0 = q0.y - w0.y;
@@ -287,14 +290,16 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
             let l2 = (index < q2.last) & (r2 > zero) & (r2 >= tau);
             let l3 = (index < q3.last) & (r3 > zero) & (r3 >= tau);
             if (any(l0 | l1 | l2 | l3)) {
-                let c0 = staged[REC * (buf + j) + 3u];
-                let cx = staged[REC * (buf + j) + 4u];
-                let cy = staged[REC * (buf + j) + 5u];
+                let w3 = staged[REC * (buf + j) + 3u];
+                let w4 = staged[REC * (buf + j) + 4u];
+                let c0 = vec4<f32>(w2.zw, w3.x, w4.w);   // c0.w carries s.y
+                let cx = w3.yzww;
+                let cy = w4;
                 sums = Sums(zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero);
-                let t0 = replay4(&q0, &sums, l0, r0, e00, e01, e02, w0.z, sigma, c0, cx, cy, dx);
-                let t1 = replay4(&q1, &sums, l1, r1, e10, e11, e12, w0.z, sigma, c0, cx, cy, dx);
-                let t2 = replay4(&q2, &sums, l2, r2, e20, e21, e22, w0.z, sigma, c0, cx, cy, dx);
-                let t3 = replay4(&q3, &sums, l3, r3, e30, e31, e32, w0.z, sigma, c0, cx, cy, dx);
+                let t0 = replay4(&q0, &sums, l0, r0, e00, e01, e02, w2.y, sigma, c0, cx, cy, dx);
+                let t1 = replay4(&q1, &sums, l1, r1, e10, e11, e12, w2.y, sigma, c0, cx, cy, dx);
+                let t2 = replay4(&q2, &sums, l2, r2, e20, e21, e22, w2.y, sigma, c0, cx, cy, dx);
+                let t3 = replay4(&q3, &sums, l3, r3, e30, e31, e32, w2.y, sigma, c0, cx, cy, dx);
                 if (t0 || t1 || t2 || t3) {
                     let o = 4u * (j * THREADS + li);
                     red[o] = vec4<f32>(hsum(sums.wr), hsum(sums.wg), hsum(sums.wb), hsum(sums.vo));
