@@ -17,6 +17,7 @@ examples:
   tsplus bench-raster --json out/raster.json
   tsplus adapters                       list GPU adapters and their features
   tsplus inspect ../shared/data/cup     what a scene folder holds
+  tsplus train --out runs/small         train on the built-in scene (add --preset quick --iterations 300)
 
 environment:
   TSPLUS_ADAPTER   adapter to use (substring of its name; 'lavapipe' = Mesa's CPU driver)
@@ -67,6 +68,9 @@ def build_parser():
     _add_adapter(p)
 
     p = sub.add_parser("adapters", help="list the GPU adapters wgpu sees, with features and the chosen one")
+
+    from .train.cli import add_train_parser
+    add_train_parser(sub)
 
     try:
         from .data import cli as data_cli
@@ -187,6 +191,9 @@ def main(argv=None):
             return run_bench_raster(args)
         if args.command == "adapters":
             return cmd_adapters(args)
+        if args.command == "train":
+            from .train.cli import run_train
+            return run_train(args)
         if args.command == "inspect":
             from .data import cli as data_cli
             return data_cli.run_inspect(args)

@@ -1,0 +1,426 @@
+"""The training loop of Triangle Splatting+ on the device: :class:`Trainer`.
+
+Every step stays on the device: ``train_activate`` (opacity from logits with the scheduled
+floor, re-inverting the logits when it moves; SH to the renderer's layout) -> forward at the
+scheduled sigma -> :class:`~.losses.ImageLoss` (0.8 L1 + 0.2 D-SSIM) -> ``pack_v_out`` ->
+backward (gradients into reused device buffers, no readback) -> early opacity loss
+(``opacity_reg`` + segmented sum, while it < 5000 scaled) -> ``train_grads`` (chain rule of the
+opacity activation, SH bands above the scheduled degree masked) -> Adam per parameter group
+(positions, SH DC, SH rest, opacity logits) with the scheduled learning rates.
+
+Host round trips: the forward pass's own size readbacks (pair counts) and the backward's
+tile-range readback, both inside the renderer; the trainer reads back only at its logging
+interval and for checkpoints.
+
+Determinism: the view of iteration ``it`` is ``perm_e[(it - 1) % V]`` with ``perm_e`` the
+permutation of the V training views drawn by ``numpy.random.default_rng([seed, e])``,
+``e = (it - 1) // V``: a pure function of (seed, iteration), so the RNG state is the
+iteration and a resumed run draws exactly the views an uninterrupted one does. Every kernel
+sums in a fixed order, so the same seed on the same adapter gives bit-identical parameters,
+and a run resumed from a checkpoint (parameters, Adam moments, iteration) equals the
+uninterrupted one bit for bit.
+
+Not implemented yet (issue 5), stated so nobody relies on it:
+
+* TODO(issue 5, topology): hard prune, blending-weight prune with the rising threshold, size
+  prune and midpoint densification are not run during training; the triangle list is the
+  Delaunay initialisation throughout. Only the final cleanup of method.md (delete triangles
+  whose max blending weight over the training views is <= 0.5, then unused vertices) runs, in
+  :meth:`Trainer.final_mesh`. A strategy object with Adam state following each edit is the
+  intended shape.
+* TODO(issue 5): supersampled rendering (s = 2, 4 late in the run), the normal loss, the
+  densification stop criterion and ``--max-vertices``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..device_model import DeviceModel
+from ..types import TriangleModel
+from .init import SH_C0, init_from_points
+from .kernels import OpacityReg, PackVOut, TrainActivate, TrainGrads
+from .losses import ImageLoss, ssim_map_reference
+from .optim import Adam
+from .schedules import SIGMA_FINAL, Schedule, logit_from_opacity
+
+CHECKPOINT_VERSION = 1
+FINAL_PRUNE_WEIGHT = 0.5
+
+
+@dataclass
+class TrainConfig:
+    """Everything that determines a run (written to ``config.json``, stored in checkpoints).
+
+    Args:
+        iterations: optimisation steps (30000 in the paper).
+        quick: scale every schedule's iteration constants to ``iterations`` (``--preset quick``).
+        indoor: the indoor constants of method.md.
+        seed: view order (and nothing else is random).
+        sh_degree: SH degree of the model's storage (the schedule raises the trained degree).
+        background: RGB behind the triangles.
+        near: near plane (scene units).
+        log_every: iterations between log lines (host readback only then).
+        checkpoint_every: iterations between checkpoints (0: only at the end / on Ctrl-C).
+        opacity_reg: apply the early opacity loss of method.md.
+    """
+
+    iterations: int = 30000
+    quick: bool = False
+    indoor: bool = False
+    seed: int = 0
+    sh_degree: int = 3
+    background: tuple = (0.0, 0.0, 0.0)
+    near: float = 0.01
+    log_every: int = 50
+    checkpoint_every: int = 0
+    opacity_reg: bool = True
+    extra: dict = field(default_factory=dict)
+
+    def schedule(self):
+        return Schedule(total=int(self.iterations), indoor=bool(self.indoor), quick=bool(self.quick))
+
+    #: fields that must match for ``--resume`` (the others may change between sessions)
+    RESUME_KEYS = ("iterations", "quick", "indoor", "seed", "sh_degree", "background", "near", "opacity_reg")
+
+
+def psnr(a, b):
+    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
+    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
+
+
+def ssim(a, b):
+    return float(ssim_map_reference(a, b).mean())
+
+
+def _atomic_write_bytes(path, write):
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+class Trainer:
+    """Trains a triangle model on a :class:`~tsplus_wgpu.data.Scene`.
+
+    Args:
+        scene: the scene (cameras, images, points, train/test split).
+        config: a :class:`TrainConfig`.
+        renderer: a :class:`~tsplus_wgpu.Renderer` (default: a new one on the best adapter).
+        model: an initial :class:`TriangleModel` (default: :func:`init_from_points` of the
+            scene's points and colours).
+    """
+
+    def __init__(self, scene, config: TrainConfig, renderer=None, model: TriangleModel | None = None):
+        from ..renderer import Renderer
+        if not scene.train_indices:
+            raise ValueError("scene: it has no training views")
+        self.scene = scene
+        self.config = config
+        self.sched = config.schedule()
+        self.renderer = renderer if renderer is not None else Renderer()
+        self.ctx = c = self.renderer.ctx
+        if model is None:
+            if scene.points is None or len(scene.points) < 3:
+                raise ValueError("scene: it has no initial points (need at least 3 to triangulate)")
+            model = init_from_points(scene.points, scene.point_colors, sh_degree=config.sh_degree)
+        self.train_views = list(scene.train_indices)
+        self.iteration = 0
+        self.elapsed = 0.0         # seconds of training, summed over sessions
+        self.loss_image = ImageLoss(c, self.renderer.scratch)
+        self.activate = TrainActivate(c)
+        self.grads = TrainGrads(c)
+        self.pack = PackVOut(c)
+        self.adam = Adam(c)
+        self.reg = OpacityReg(c, self.renderer.scratch)
+        self._targets = {}
+        self._set_model(model.positions, model.triangles, model.sh,
+                        logit_from_opacity(model.opacity, self.sched.opacity_floor(0)))
+
+    # ------------------------------------------------------------------ device state
+    def _set_model(self, positions, triangles, sh, logits, adam=None):
+        """(Re)create every device buffer from host arrays (init, resume)."""
+        c = self.ctx
+        n, k = positions.shape[0], sh.shape[1]
+        m = triangles.shape[0]
+        self.n, self.m, self.k = n, m, k
+        self.triangles_host = np.asarray(triangles, np.int64)
+        pos = np.ascontiguousarray(positions, np.float32)
+        sh_planar = np.ascontiguousarray(np.asarray(sh, np.float32).transpose(1, 0, 2))
+        w = np.ascontiguousarray(logits, np.float32)
+        self.params = dict(positions=c.upload(pos, "positions"), sh=c.upload(sh_planar, "sh_planar"),
+                           logits=c.upload(w, "logits"))
+        sizes = dict(positions=3 * n, sh=3 * n * k, logits=n)
+        self.moments = {}
+        for key, size in sizes.items():
+            if adam is None:
+                m1 = m2 = np.zeros(size, np.float32)
+            else:
+                m1, m2 = adam[key]
+            self.moments[key] = (c.upload(np.asarray(m1, np.float32), f"exp_avg_{key}"),
+                                 c.upload(np.asarray(m2, np.float32), f"exp_avg_sq_{key}"))
+        self.sizes = sizes
+        render = dict(positions=self.params["positions"], triangles=c.upload(self.triangles_host.astype(np.uint32),
+                                                                             "triangles"),
+                      sh=c.buffer(12 * n * k, "render_sh"), opacity=c.buffer(4 * n, "render_opacity"))
+        self.model = DeviceModel(c, render, n, m, k)
+        self.gbuf = dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh"),
+                         v_opacity=c.buffer(4 * n, "v_opacity"))
+        self.pgrad = dict(positions=self.gbuf["v_positions"], sh=c.buffer(12 * n * k, "v_sh_planar"),
+                          logits=c.buffer(4 * n, "v_logits"))
+        self.reg_vals = c.buffer(16 * 3 * m, "opacity_reg_corners")
+        self.reg_out = c.buffer(16 * n, "opacity_reg_vertex")
+        self.reg.set_topology(self.triangles_host)
+        self._activate(self.sched.opacity_floor(self.iteration))
+
+    def _activate(self, floor, floor_old=None):
+        enc = self.ctx.device.create_command_encoder()
+        self.activate(enc, self.params["sh"], self.params["logits"], self.model.buffers["sh"],
+                      self.model.buffers["opacity"], self.n, self.k, floor, floor_old)
+        self.ctx.queue.submit([enc.finish()])
+
+    def _target(self, view):
+        buf = self._targets.get(view)
+        if buf is None:
+            img = np.ascontiguousarray(self.scene.images[view], np.float32)
+            buf = self._targets[view] = self.ctx.upload(img, f"target_{view}")
+        return buf
+
+    def view_of(self, it):
+        """Training view (index into the scene) of 1-based iteration ``it``."""
+        v = len(self.train_views)
+        epoch, pos = divmod(int(it) - 1, v)
+        perm = np.random.default_rng([int(self.config.seed), epoch]).permutation(v)
+        return self.train_views[int(perm[pos])]
+
+    # ------------------------------------------------------------------ one step
+    def step(self, read_stats=False):
+        """One optimisation step (iteration ``self.iteration + 1``). With ``read_stats`` the
+        loss and the training-view PSNR are read back (a host round trip) and returned."""
+        c, s = self.ctx, self.sched
+        it = self.iteration + 1
+        floor = s.opacity_floor(it)
+        if s.opacity_floor_changes(it):
+            self._activate(floor, s.opacity_floor(it - 1))
+        view = self.view_of(it)
+        cam = self.scene.cameras[view]
+        h, w = cam.height, cam.width
+        res = self.renderer.forward(self.model, cam, s.sigma(it), self.config.background, self.config.near)
+        scr = self.renderer.scratch
+        v_img = scr.get("train_v_image", 12 * h * w)
+        v_out = scr.get("train_v_out", 16 * h * w)
+        loss_buf = scr.get("train_loss", 16)
+        enc = c.device.create_command_encoder()
+        self.loss_image.record(enc, res.buffers["image"], self._target(view), v_img, loss_buf, w, h)
+        self.pack(enc, v_img, v_out, h * w)
+        c.queue.submit([enc.finish()])
+        self.renderer.backward(res, v_out, read=False, out=self.gbuf)
+        enc = c.device.create_command_encoder()
+        reg_w = s.opacity_reg_weight(it) if self.config.opacity_reg else 0.0
+        if reg_w > 0:
+            self.reg.record(enc, self.model.buffers["triangles"], self.model.buffers["opacity"], self.reg_vals,
+                            self.reg_out, reg_w)
+        active_k = min(self.k, (s.sh_degree(it) + 1) ** 2)
+        self.grads(enc, self.params["logits"], self.gbuf["v_sh"], self.gbuf["v_opacity"], self.reg_out,
+                   self.pgrad["sh"], self.pgrad["logits"], self.n, self.k, active_k, floor, reg_w > 0)
+        lr = s.learning_rates(it)
+        n = self.n
+        groups = (("positions", lr["positions"], 0, 3 * n), ("sh", lr["sh_dc"], 0, 3 * n),
+                  ("sh", lr["sh_rest"], 3 * n, 3 * n * (self.k - 1)), ("logits", lr["opacity"], 0, n))
+        for key, rate, off, size in groups:
+            m1, m2 = self.moments[key]
+            self.adam.record(enc, self.params[key], self.pgrad[key], m1, m2, size, rate, it, offset=off)
+        self.activate(enc, self.params["sh"], self.params["logits"], self.model.buffers["sh"],
+                      self.model.buffers["opacity"], n, self.k, floor)
+        c.queue.submit([enc.finish()])
+        self.iteration = it
+        if not read_stats:
+            return None
+        loss = c.read(loss_buf, np.float32, 4)
+        img = res.image
+        return dict(loss=float(loss[0]), l1=float(loss[1]), ssim=float(loss[2]),
+                    psnr=psnr(img, self.scene.images[view]), view=int(view))
+
+    # ------------------------------------------------------------------ loop
+    def train(self, out_dir=None, progress=True, until=None, log_every=None):
+        """Run to ``until`` (default: the configured iterations). Logs to ``out_dir/log.jsonl``;
+        checkpoints every ``checkpoint_every`` iterations and at the end; Ctrl-C (SIGINT)
+        finishes the current step, writes a checkpoint and raises KeyboardInterrupt."""
+        cfg = self.config
+        until = int(cfg.iterations if until is None else until)
+        log_every = int(cfg.log_every if log_every is None else log_every)
+        out = Path(out_dir) if out_dir is not None else None
+        if out is not None:
+            out.mkdir(parents=True, exist_ok=True)
+        interrupted = []
+        old_handler = None
+        try:
+            old_handler = signal.signal(signal.SIGINT, lambda *a: interrupted.append(1))
+        except ValueError:     # not the main thread: Ctrl-C is not ours to catch
+            old_handler = None
+        bar = None
+        if progress:
+            from tqdm import tqdm
+            bar = tqdm(total=until, initial=self.iteration, desc="train", unit="it", dynamic_ncols=True)
+        try:
+            t_last, it_last = time.perf_counter(), self.iteration
+            t0 = time.perf_counter()
+            base_elapsed = self.elapsed
+            while self.iteration < until and not interrupted:
+                it = self.iteration + 1
+                log_now = log_every > 0 and (it % log_every == 0 or it == until or it == 1)
+                stats = self.step(read_stats=log_now)
+                self.elapsed = base_elapsed + time.perf_counter() - t0
+                if bar is not None:
+                    bar.update(1)
+                if stats is not None:
+                    now = time.perf_counter()
+                    ips = (self.iteration - it_last) / max(now - t_last, 1e-9)
+                    t_last, it_last = now, self.iteration
+                    rec = dict(iteration=self.iteration, loss=stats["loss"], l1=stats["l1"], ssim=stats["ssim"],
+                               psnr=stats["psnr"], vertices=self.n, triangles=self.m,
+                               sigma=self.sched.sigma(self.iteration), floor=self.sched.opacity_floor(self.iteration),
+                               sh_degree=self.sched.sh_degree(self.iteration), iterations_per_s=ips,
+                               elapsed=self.elapsed)
+                    if out is not None:
+                        with open(out / "log.jsonl", "a") as f:
+                            f.write(json.dumps(rec) + "\n")
+                    if bar is not None:
+                        bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}", tris=self.m)
+                if out is not None and cfg.checkpoint_every and self.iteration % cfg.checkpoint_every == 0:
+                    self.save_checkpoint(out / "checkpoint.npz")
+        finally:
+            if bar is not None:
+                bar.close()
+            if old_handler is not None:
+                signal.signal(signal.SIGINT, old_handler)
+        if out is not None:
+            self.save_checkpoint(out / "checkpoint.npz")
+        if interrupted:
+            raise KeyboardInterrupt
+        return self
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_arrays(self):
+        """Host copies of everything a bit-identical resume needs."""
+        c = self.ctx
+        arrays = dict(
+            positions=c.read(self.params["positions"], np.float32, 3 * self.n).reshape(self.n, 3),
+            sh_planar=c.read(self.params["sh"], np.float32, 3 * self.n * self.k).reshape(self.k, self.n, 3),
+            logits=c.read(self.params["logits"], np.float32, self.n),
+            triangles=self.triangles_host.astype(np.int64),
+        )
+        for key, size in self.sizes.items():
+            m1, m2 = self.moments[key]
+            arrays[f"exp_avg_{key}"] = c.read(m1, np.float32, size)
+            arrays[f"exp_avg_sq_{key}"] = c.read(m2, np.float32, size)
+        return arrays
+
+    def save_checkpoint(self, path):
+        """Atomic (temp file + os.replace) checkpoint."""
+        arrays = self.state_arrays()
+        meta = dict(version=CHECKPOINT_VERSION, iteration=self.iteration, elapsed=self.elapsed,
+                    config=asdict(self.config), adapter=self.renderer.adapter_name,
+                    view_rng="numpy default_rng([seed, epoch]).permutation per epoch (stateless)")
+        arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+        _atomic_write_bytes(path, lambda f: np.savez(f, **arrays))
+
+    @classmethod
+    def resume(cls, path, scene, config: TrainConfig | None = None, renderer=None):
+        """A trainer continuing from a checkpoint. ``config`` (optional) must agree with the
+        checkpoint's on :attr:`TrainConfig.RESUME_KEYS`; other fields (logging) come from it."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"--resume: no checkpoint at {path}")
+        try:
+            with np.load(path) as z:
+                arrays = {k: z[k] for k in z.files}
+            meta = json.loads(bytes(arrays.pop("meta")).decode())
+        except Exception as exc:
+            raise ValueError(f"--resume: {path} is not a readable tsplus checkpoint ({exc})") from None
+        if meta.get("version") != CHECKPOINT_VERSION:
+            raise ValueError(f"--resume: {path} has checkpoint version {meta.get('version')}, "
+                             f"this tsplus reads {CHECKPOINT_VERSION}")
+        saved = meta["config"]
+        saved["background"] = tuple(saved["background"])
+        if config is None:
+            config = TrainConfig(**saved)
+        else:
+            mine = asdict(config)
+            mine["background"] = tuple(mine["background"])
+            diff = [f"{k} {saved[k]!r} (checkpoint) vs {mine[k]!r}" for k in TrainConfig.RESUME_KEYS
+                    if saved.get(k) != mine.get(k)]
+            if diff:
+                raise ValueError(f"--resume: the run's settings differ from the checkpoint's: {'; '.join(diff)}")
+        sh = arrays["sh_planar"].transpose(1, 0, 2)
+        init = TriangleModel(arrays["positions"], arrays["triangles"], sh,
+                             np.full(arrays["positions"].shape[0], 0.5))
+        t = cls(scene, config, renderer=renderer, model=init)
+        t.iteration = int(meta["iteration"])
+        t.elapsed = float(meta.get("elapsed", 0.0))
+        adam = {key: (arrays[f"exp_avg_{key}"], arrays[f"exp_avg_sq_{key}"]) for key in ("positions", "sh", "logits")}
+        t._set_model(arrays["positions"], arrays["triangles"], sh, arrays["logits"], adam=adam)
+        return t
+
+    # ------------------------------------------------------------------ results
+    def current_model(self) -> TriangleModel:
+        """The model as trained (activated opacity, full SH), read back."""
+        return self.model.to_model()
+
+    def render(self, model, camera, sigma=None):
+        sigma = self.sched.sigma(self.iteration) if sigma is None else sigma
+        return self.renderer.forward(model, camera, sigma, self.config.background, self.config.near).image
+
+    def final_mesh(self):
+        """method.md's end of training: render every training view with the trained model,
+        delete triangles whose max blending weight <= 0.5 and the vertices no triangle uses;
+        then drop sigma and opacity. Returns ``(positions [V, 3], triangles [F, 3],
+        colors [V, 3] in [0, 1] from SH DC)``."""
+        sigma = self.sched.sigma(self.iteration)
+        mw = np.zeros(self.m, np.float32)
+        for v in self.train_views:
+            res = self.renderer.forward(self.model, self.scene.cameras[v], sigma, self.config.background,
+                                        self.config.near)
+            mw = np.maximum(mw, res.max_weight)
+        model = self.current_model()
+        keep = mw > FINAL_PRUNE_WEIGHT
+        tris = model.triangles[keep]
+        used = np.zeros(model.num_vertices, bool)
+        used[tris.ravel()] = True
+        new_from_old = np.cumsum(used) - 1
+        colors = np.clip(model.sh[:, 0] * SH_C0 + 0.5, 0.0, 1.0)
+        return model.positions[used], new_from_old[tris], colors[used]
+
+    @staticmethod
+    def mesh_model(positions, triangles, colors):
+        """The exported mesh as an opaque, vertex-coloured model for evaluation."""
+        sh = ((np.asarray(colors, np.float64) - 0.5) / SH_C0)[:, None, :]
+        return TriangleModel(positions, triangles, sh, np.ones(len(positions)))
+
+    def evaluate(self, model=None, sigma=None, views=None):
+        """Mean PSNR / SSIM over ``views`` (default: the held-out ones, else the training ones)
+        of ``model`` (default: the trained model at the current sigma). Returns (psnr, ssim, images)."""
+        views = list(self.scene.test_indices or self.train_views) if views is None else list(views)
+        model = self.model if model is None else model
+        ps, ss, imgs = [], [], []
+        for v in views:
+            img = self.render(model, self.scene.cameras[v], sigma)
+            ps.append(psnr(img, self.scene.images[v]))
+            ss.append(ssim(img, self.scene.images[v]))
+            imgs.append(img)
+        return float(np.mean(ps)), float(np.mean(ss)), imgs
