@@ -24,6 +24,7 @@ as many levels as needed.
 
 from __future__ import annotations
 
+import hashlib
 import time
 import weakref
 
@@ -33,6 +34,7 @@ import wgpu
 from .gpu import Profiler, Stage
 from .reference_backward import Grads, check_cotangents
 from .stages import RadixSort
+from .types import TriangleModel
 
 NSTAT = 20
 
@@ -158,6 +160,35 @@ class BackwardPass:
         self.project = ProjectBackward(c)
         self.vertex = VertexBackward(c)
         self.corner_sort = RadixSort(c, renderer.scratch, "corner_sort")
+        self._corner_cache = None   # (topology key, sorted corner keys, corner ids)
+
+    def _corner_order(self, enc, model, triangles, m, n, profiler):
+        """The corners sorted by vertex (stable): (vertex keys, corner ids) buffers.
+
+        It depends only on the index buffer, so for a host :class:`TriangleModel` it is
+        kept for the next call with the same topology, keyed on the index array's content
+        (a digest, so a changed topology is never served a stale order). A model already
+        on the device has no host copy to key on: sorted every call."""
+        key = None
+        if isinstance(model, TriangleModel):
+            idx = np.ascontiguousarray(model.triangles, dtype=np.uint32)
+            key = (int(n), int(m), hashlib.blake2b(idx.tobytes(), digest_size=20).digest())
+            if self._corner_cache is not None and self._corner_cache[0] == key:
+                return self._corner_cache[1], self._corner_cache[2]
+        c = self.ctx
+        keys = c.buffer(12 * m, "corner_keys")
+        vals = c.upload(np.arange(3 * m, dtype=np.uint32), "corner_ids")
+        enc.copy_buffer_to_buffer(triangles, 0, keys, 0, 12 * m)
+        bits = max(1, int(n - 1).bit_length())
+        skeys, svals = self.corner_sort.record(enc, keys, vals, 3 * m, bits, profiler)
+        if key is None:
+            return skeys, svals
+        # owned copies (the sort may leave its result in scratch buffers shared by later calls)
+        ck, cv = c.buffer(12 * m, "corner_keys_sorted"), c.buffer(12 * m, "corner_ids_sorted")
+        enc.copy_buffer_to_buffer(skeys, 0, ck, 0, 12 * m)
+        enc.copy_buffer_to_buffer(svals, 0, cv, 0, 12 * m)
+        self._corner_cache = (key, ck, cv)
+        return ck, cv
 
     def run(self, result, v_image, v_transmittance=None, profile=False, read=True, out=None):
         """The backward pass of ``result``.
@@ -223,8 +254,6 @@ class BackwardPass:
             return self._finish(out, n, k, {}, {}, read, wait=not given)
         dev = result.model_buffers if getattr(result, "model_buffers", None) is not None else r.upload_model(model)
         params = r._frame_params(model, cam, result.sigma, np.asarray(result.background), result.near, P)
-        keys = c.buffer(12 * m, "corner_keys")
-        vals = c.upload(np.arange(3 * m, dtype=np.uint32), "corner_ids")
         pkeys = c.buffer(4 * P, "pair_keys")
         pvals = c.upload(np.arange(P, dtype=np.uint32), "pair_ids")
         buf = dict(v_out=v_out_buffer if v_out_buffer is not None else c.upload(v_out, "v_out"), partials=c.buffer(4 * NSTAT * P, "partials"),
@@ -251,9 +280,7 @@ class BackwardPass:
         self.project(enc, params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"], b["tris"],
                      b["pixel_rects"], buf["tri_stats"], buf["corner_grads"], m, prof)
         submit(enc, "project_backward"); enc = c.device.create_command_encoder()
-        enc.copy_buffer_to_buffer(dev["triangles"], 0, keys, 0, 12 * m)
-        bits = max(1, int(n - 1).bit_length())
-        skeys, svals = self.corner_sort.record(enc, keys, vals, 3 * m, bits, prof)
+        skeys, svals = self._corner_order(enc, model, dev["triangles"], m, n, prof)
         self.corner_sum.record(enc, skeys, svals, buf["corner_grads"], 3 * m, 2, buf["vertex_sums"], prof,
                                "corner_sum")
         submit(enc, "corner_sum"); enc = c.device.create_command_encoder()
