@@ -5,6 +5,11 @@
 * :mod:`.losses` - :class:`ImageLoss` (0.8 L1 + 0.2 (1 - SSIM) and its image gradient, WGSL) and
   the float64 twin :func:`image_loss_reference`.
 * :mod:`.optim` - :class:`Adam` (WGSL, one dispatch per parameter group) and :func:`adam_reference`.
+* :mod:`.kernels` - the trainer's small kernels (opacity activation, parameter gradients, v_image
+  packing, early opacity loss) with float64 twins.
+* :mod:`.trainer` - :class:`~.trainer.Trainer` and :class:`~.trainer.TrainConfig`, the loop behind
+  ``tsplus train`` (:mod:`.cli`). Pruning/densification during training are not implemented yet
+  (see the trainer's module docstring).
 
 The device modules import wgpu; they are loaded on first use.
 """
