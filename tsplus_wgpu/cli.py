@@ -44,7 +44,7 @@ def build_parser():
     parser.add_argument("--version", action="version", version=f"tsplus-wgpu {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    p = sub.add_parser("render", help="render the built-in procedural scene (the main job until training lands)",
+    p = sub.add_parser("render", help="render the built-in procedural scene's ground-truth mesh through the WGSL rasterizer",
                        description="Render the built-in procedural scene's ground-truth mesh (vertex colours, "
                                    "opaque) through the WGSL rasterizer from every camera, compare with the scene's "
                                    "reference images (PSNR) and print per-stage timings.")
@@ -78,11 +78,9 @@ def build_parser():
     except ImportError:  # pragma: no cover
         pass
     try:
-        from . import bench_backward
-        bp = sub.add_parser("bench-backward", help="benchmark forward + backward per stage",
-                            add_help=False)
-        bp.add_argument("rest", nargs=argparse.REMAINDER)
-        bp.set_defaults(_backward_main=bench_backward.main)
+        from . import bench_backward  # noqa: F401  (its own parser: main() hands it the arguments)
+        sub.add_parser("bench-backward", help="benchmark forward + backward per stage (tsplus bench-backward --help)",
+                       add_help=False)
     except ImportError:
         pass
     return parser
@@ -170,7 +168,10 @@ def cmd_render(args):
 
 
 def main(argv=None):
-    argv = sys.argv[1:] if argv is None else argv
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["bench-backward"]:      # a command with its own argument parser
+        from . import bench_backward
+        return bench_backward.main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
@@ -182,8 +183,6 @@ def main(argv=None):
     except ImportError:  # pragma: no cover
         SceneError = UserError
     try:
-        if getattr(args, "_backward_main", None):
-            return args._backward_main(args.rest)
         if args.command == "render":
             return cmd_render(args)
         if args.command == "bench-raster":
