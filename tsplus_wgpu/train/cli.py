@@ -19,7 +19,7 @@ def add_train_parser(sub):
                     "procedural scene, 'procedural:tiny|small|demo' to pick its size) and write to --out: "
                     "mesh.ply (opaque, vertex colours from SH DC), metrics.json (held-out PSNR/SSIM), test "
                     "renders, log.jsonl, config.json and checkpoint.npz (--resume continues it bit-identically). "
-                    "Not implemented yet: pruning/densification during training, supersampling, normal loss.")
+                    "Not implemented yet: supersampling, normal loss.")
     p.add_argument("scene", nargs="?", default="procedural:small",
                    help="scene folder, or procedural[:tiny|small|demo] (default procedural:small)")
     p.add_argument("--out", required=True, help="output folder")
@@ -35,6 +35,10 @@ def add_train_parser(sub):
                                                                   "quick: 25)")
     p.add_argument("--checkpoint-every", type=int, default=1000, help="iterations between checkpoints (0: only at "
                                                                        "the end or on Ctrl-C; default 1000)")
+    p.add_argument("--max-vertices", type=int, default=None, help="densification cap (default 3000000, method.md)")
+    p.add_argument("--densify-stop", type=float, default=None,
+                   help="stop densifying when the mean training L1 of the last 3 topology windows improved by less "
+                        "than this fraction on the 3 before (default 0.01; 0: never)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
     return p
@@ -95,7 +99,10 @@ def run_train(args):
     scene = _load(args.scene, args.downscale, args.seed)
     cfg = TrainConfig(iterations=iterations, quick=quick, indoor=args.indoor, seed=args.seed,
                       background=tuple(float(x) for x in scene.background), log_every=log_every,
-                      checkpoint_every=args.checkpoint_every, extra=dict(scene=str(args.scene),
+                      checkpoint_every=args.checkpoint_every,
+                      **({} if args.max_vertices is None else dict(max_vertices=args.max_vertices)),
+                      **({} if args.densify_stop is None else dict(densify_stop_rel=args.densify_stop)),
+                      extra=dict(scene=str(args.scene),
                                                                           downscale=args.downscale))
     renderer = Renderer(args.adapter)
     out.mkdir(parents=True, exist_ok=True)

@@ -22,14 +22,12 @@ uninterrupted one bit for bit.
 
 Not implemented yet (issue 5), stated so nobody relies on it:
 
-* TODO(issue 5, topology): hard prune, blending-weight prune with the rising threshold, size
-  prune and midpoint densification are not run during training; the triangle list is the
-  Delaunay initialisation throughout. Only the final cleanup of method.md (delete triangles
-  whose max blending weight over the training views is <= 0.5, then unused vertices) runs, in
-  :meth:`Trainer.final_mesh`. A strategy object with Adam state following each edit is the
-  intended shape.
-* TODO(issue 5): supersampled rendering (s = 2, 4 late in the run), the normal loss, the
-  densification stop criterion and ``--max-vertices``.
+* Topology (prune, densify, the densification stop, ``max_vertices``) is
+  :class:`~.topology.TopologyStrategy`: the step records its per-triangle max-weight
+  accumulation, and every topology step (500 iterations, scaled) is one host round trip that
+  edits the mesh and the Adam state and re-creates the device buffers. Its events go to
+  ``log.jsonl`` (``event: topology`` / ``densify_stop``).
+* TODO(issue 5): supersampled rendering (s = 2, 4 late in the run) and the normal loss.
 """
 
 from __future__ import annotations
@@ -51,6 +49,7 @@ from .kernels import OpacityReg, PackVOut, TrainActivate, TrainGrads
 from .losses import ImageLoss, ssim_map_reference
 from .optim import Adam
 from .schedules import SIGMA_FINAL, Schedule, logit_from_opacity
+from .topology import TopologyStrategy
 
 CHECKPOINT_VERSION = 1
 FINAL_PRUNE_WEIGHT = 0.5
@@ -71,6 +70,11 @@ class TrainConfig:
         log_every: iterations between log lines (host readback only then).
         checkpoint_every: iterations between checkpoints (0: only at the end / on Ctrl-C).
         opacity_reg: apply the early opacity loss of method.md.
+        topology: run pruning and densification (:class:`~.topology.TopologyStrategy`).
+        max_vertices: densification cap (method.md's 3M).
+        densify_stop_rel, densify_stop_windows: densification stops when the mean training L1
+            of the last K topology windows improved by less than this fraction on the K before
+            (0: never stop early).
     """
 
     iterations: int = 30000
@@ -83,13 +87,18 @@ class TrainConfig:
     log_every: int = 50
     checkpoint_every: int = 0
     opacity_reg: bool = True
+    topology: bool = True
+    max_vertices: int = 3_000_000
+    densify_stop_rel: float = 0.01
+    densify_stop_windows: int = 3
     extra: dict = field(default_factory=dict)
 
     def schedule(self):
         return Schedule(total=int(self.iterations), indoor=bool(self.indoor), quick=bool(self.quick))
 
     #: fields that must match for ``--resume`` (the others may change between sessions)
-    RESUME_KEYS = ("iterations", "quick", "indoor", "seed", "sh_degree", "background", "near", "opacity_reg")
+    RESUME_KEYS = ("iterations", "quick", "indoor", "seed", "sh_degree", "background", "near", "opacity_reg",
+                   "topology", "max_vertices", "densify_stop_rel", "densify_stop_windows")
 
 
 def psnr(a, b):
@@ -149,12 +158,18 @@ class Trainer:
         self.adam = Adam(c)
         self.reg = OpacityReg(c, self.renderer.scratch)
         self._targets = {}
+        self.topology = TopologyStrategy(self.sched, seed=config.seed, max_vertices=config.max_vertices,
+                                         stop_rel=config.densify_stop_rel, stop_windows=config.densify_stop_windows,
+                                         enabled=config.topology, near=config.near)
         self._set_model(model.positions, model.triangles, model.sh,
                         logit_from_opacity(model.opacity, self.sched.opacity_floor(0)))
 
     # ------------------------------------------------------------------ device state
-    def _set_model(self, positions, triangles, sh, logits, adam=None):
-        """(Re)create every device buffer from host arrays (init, resume)."""
+    def _set_model(self, positions, triangles, sh, logits, adam=None, max_weight=None):
+        """(Re)create every device buffer from host arrays (init, resume, topology edits).
+        ``sh`` is ``[N, K, 3]``; ``adam`` maps each group to its (exp_avg, exp_avg_sq) in the
+        flat layout of the parameter buffers; ``max_weight [M]`` seeds the topology's running
+        maximum."""
         c = self.ctx
         n, k = positions.shape[0], sh.shape[1]
         m = triangles.shape[0]
@@ -186,6 +201,7 @@ class Trainer:
         self.reg_vals = c.buffer(16 * 3 * m, "opacity_reg_corners")
         self.reg_out = c.buffer(16 * n, "opacity_reg_vertex")
         self.reg.set_topology(self.triangles_host)
+        self.topology.attach(self, max_weight)
         self._activate(self.sched.opacity_floor(self.iteration))
 
     def _activate(self, floor, floor_old=None):
@@ -214,6 +230,7 @@ class Trainer:
         loss and the training-view PSNR are read back (a host round trip) and returned."""
         c, s = self.ctx, self.sched
         it = self.iteration + 1
+        self.topology.pre_step(self, it)
         floor = s.opacity_floor(it)
         if s.opacity_floor_changes(it):
             self._activate(floor, s.opacity_floor(it - 1))
@@ -247,14 +264,17 @@ class Trainer:
             self.adam.record(enc, self.params[key], self.pgrad[key], m1, m2, size, rate, it, offset=off)
         self.activate(enc, self.params["sh"], self.params["logits"], self.model.buffers["sh"],
                       self.model.buffers["opacity"], n, self.k, floor)
+        edit = self.topology.post_step(self, it, res, view, loss_buf, enc)
         c.queue.submit([enc.finish()])
         self.iteration = it
-        if not read_stats:
-            return None
-        loss = c.read(loss_buf, np.float32, 4)
-        img = res.image
-        return dict(loss=float(loss[0]), l1=float(loss[1]), ssim=float(loss[2]),
-                    psnr=psnr(img, self.scene.images[view]), view=int(view))
+        stats = None
+        if read_stats:
+            loss = c.read(loss_buf, np.float32, 4)
+            stats = dict(loss=float(loss[0]), l1=float(loss[1]), ssim=float(loss[2]),
+                         psnr=psnr(res.image, self.scene.images[view]), view=int(view))
+        if edit:
+            self.topology.edit(self, it)
+        return stats
 
     # ------------------------------------------------------------------ loop
     def train(self, out_dir=None, progress=True, until=None, log_every=None):
@@ -300,6 +320,12 @@ class Trainer:
                     if out is not None:
                         with open(out / "log.jsonl", "a") as f:
                             f.write(json.dumps(rec) + "\n")
+                if self.topology.events:
+                    if out is not None:
+                        with open(out / "log.jsonl", "a") as f:
+                            for ev in self.topology.events:
+                                f.write(json.dumps(ev) + "\n")
+                    self.topology.events = []
                     if bar is not None:
                         bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}", tris=self.m)
                 if out is not None and cfg.checkpoint_every and self.iteration % cfg.checkpoint_every == 0:
@@ -331,10 +357,16 @@ class Trainer:
             arrays[f"exp_avg_sq_{key}"] = c.read(m2, np.float32, size)
         return arrays
 
+    def topology_arrays(self):
+        """The topology strategy's device state (running max weight, L1 ring), for checkpoints."""
+        return dict(max_weight_acc=self.topology.max_weight(self), l1_ring=self.topology.ring_values(self))
+
     def save_checkpoint(self, path):
         """Atomic (temp file + os.replace) checkpoint."""
         arrays = self.state_arrays()
+        arrays.update(self.topology_arrays())
         meta = dict(version=CHECKPOINT_VERSION, iteration=self.iteration, elapsed=self.elapsed,
+                    topology=self.topology.state(),
                     config=asdict(self.config), adapter=self.renderer.adapter_name,
                     view_rng="numpy default_rng([seed, epoch]).permutation per epoch (stateless)")
         arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
@@ -356,7 +388,8 @@ class Trainer:
         if meta.get("version") != CHECKPOINT_VERSION:
             raise ValueError(f"--resume: {path} has checkpoint version {meta.get('version')}, "
                              f"this tsplus reads {CHECKPOINT_VERSION}")
-        saved = meta["config"]
+        defaults = asdict(TrainConfig())
+        saved = {**defaults, **meta["config"]}
         saved["background"] = tuple(saved["background"])
         if config is None:
             config = TrainConfig(**saved)
@@ -375,6 +408,7 @@ class Trainer:
         t.elapsed = float(meta.get("elapsed", 0.0))
         adam = {key: (arrays[f"exp_avg_{key}"], arrays[f"exp_avg_sq_{key}"]) for key in ("positions", "sh", "logits")}
         t._set_model(arrays["positions"], arrays["triangles"], sh, arrays["logits"], adam=adam)
+        t.topology.load_state(t, meta.get("topology", {}), arrays.get("max_weight_acc"), arrays.get("l1_ring"))
         return t
 
     # ------------------------------------------------------------------ results
