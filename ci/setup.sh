@@ -52,4 +52,12 @@ if ! "$VENV/bin/python" -c 'import sys; from tsplus_wgpu.gpu import list_adapter
     "$VENV/bin/python" -c 'import sys; from tsplus_wgpu.gpu import list_adapters; sys.exit(0 if list_adapters() else 1)' \
         || { echo "ci/setup.sh: still no Vulkan adapter after installing lavapipe" >&2; exit 1; }
 fi
+
+# 4. The Khronos glTF validator for the export tests (node + npm only when node is missing)
+if ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
+    apt_install nodejs npm
+fi
+if [ ! -f .tools/node_modules/gltf-validator/package.json ]; then
+    npm install --prefix .tools --no-audit --no-fund -q gltf-validator >/dev/null
+fi
 "$VENV/bin/tsplus" adapters

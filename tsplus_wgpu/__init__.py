@@ -11,9 +11,10 @@ Public API::
 
 from . import reference
 from .device_model import DeviceModel
+from .mesh_renderer import MeshRenderer
 from .renderer import ForwardResult, Renderer
 from .types import Camera, TriangleModel
 
 __version__ = "0.1.0"
 
-__all__ = ["Camera", "TriangleModel", "DeviceModel", "Renderer", "ForwardResult", "reference", "__version__"]
+__all__ = ["Camera", "TriangleModel", "DeviceModel", "MeshRenderer", "Renderer", "ForwardResult", "reference", "__version__"]

@@ -18,6 +18,8 @@ examples:
   tsplus adapters                       list GPU adapters and their features
   tsplus inspect ../shared/data/cup     what a scene folder holds
   tsplus train --out runs/small         train on the built-in scene (add --preset quick --iterations 300)
+  tsplus export runs/small --format glb --y-up   engine-ready mesh (ply|glb|obj)
+  tsplus eval runs/small procedural:small        held-out PSNR/SSIM of the mesh as an engine draws it
 
 environment:
   TSPLUS_ADAPTER   adapter to use (substring of its name; 'lavapipe' = Mesa's CPU driver)
@@ -71,6 +73,8 @@ def build_parser():
 
     from .train.cli import add_train_parser
     add_train_parser(sub)
+    from .evaluate import add_parsers as add_export_eval_parsers
+    add_export_eval_parsers(sub)
 
     try:
         from .data import cli as data_cli
@@ -193,6 +197,12 @@ def main(argv=None):
         if args.command == "train":
             from .train.cli import run_train
             return run_train(args)
+        if args.command == "export":
+            from .evaluate import run_export
+            return run_export(args)
+        if args.command == "eval":
+            from .evaluate import run_eval
+            return run_eval(args)
         if args.command == "inspect":
             from .data import cli as data_cli
             return data_cli.run_inspect(args)
