@@ -147,6 +147,7 @@ def test_cli_train_end_to_end(tmp_path):
     (["train", "procedural:tiny", "--out", "{tmp}/x", "--resume"], "no checkpoint"),
     (["train", "procedural:tiny", "--out", "{tmp}/x", "--downscale", "2"], "--downscale"),
     (["train", "procedural:huge", "--out", "{tmp}/x"], "procedural size"),
+    (["train", "procedural:tiny", "--out", "{tmp}/x", "--config", "/nonexistent.json"], "--config"),
 ])
 def test_cli_train_errors_are_one_line(tmp_path, args, msg):
     r = _cli(*[a.replace("{tmp}", str(tmp_path)) for a in args])
@@ -161,3 +162,22 @@ def test_cli_train_refuses_to_overwrite_a_checkpoint(tmp_path):
     assert r.returncode == 2 and "--resume" in r.stderr
     r = _cli("train", "procedural:tiny", "--out", tmp_path, "--iterations", "2", "--resume")
     assert r.returncode == 2 and "not a readable tsplus checkpoint" in r.stderr
+
+
+def test_cli_config_file_and_flags_override(tmp_path):
+    (tmp_path / "c.toml").write_text("iterations = 6\nquick = true\nseed = 5\nmax_vertices = 1200\n")
+    r = _cli("train", "procedural:tiny", "--out", tmp_path / "a", "--config", tmp_path / "c.toml", "--seed", 7,
+             "--no-progress")
+    assert r.returncode == 0, r.stderr
+    cfg = json.loads((tmp_path / "a" / "config.json").read_text())
+    assert (cfg["iterations"], cfg["quick"], cfg["seed"], cfg["max_vertices"]) == (6, True, 7, 1200)
+    # the written config.json is itself a valid --config: same resolved settings
+    r = _cli("train", "procedural:tiny", "--out", tmp_path / "b", "--config", tmp_path / "a" / "config.json",
+             "--iterations", 2, "--no-progress")
+    assert r.returncode == 0, r.stderr
+    cfg2 = json.loads((tmp_path / "b" / "config.json").read_text())
+    assert cfg2["iterations"] == 2 and {k: v for k, v in cfg2.items() if k not in ("iterations", "extra")} == \
+        {k: v for k, v in cfg.items() if k not in ("iterations", "extra")}
+    (tmp_path / "bad.json").write_text('{"iterations": 5, "learning_rate": 1}')
+    r = _cli("train", "procedural:tiny", "--out", tmp_path / "c", "--config", tmp_path / "bad.json")
+    assert r.returncode == 2 and "unknown keys ['learning_rate']" in r.stderr

@@ -23,22 +23,27 @@ def add_train_parser(sub):
     p.add_argument("scene", nargs="?", default="procedural:small",
                    help="scene folder, or procedural[:tiny|small|demo] (default procedural:small)")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--preset", choices=["paper", "quick"], default="paper",
+    p.add_argument("--config", default=None, metavar="FILE",
+                   help="JSON or TOML file with the keys of a run's config.json (iterations, quick, indoor, seed, "
+                        "max_vertices, densify_stop_rel, ...); flags given on the command line override it")
+    p.add_argument("--preset", choices=["paper", "quick"], default=None,
                    help="paper: method.md's schedules as they are (30k-iteration constants); quick: every schedule "
                         "scaled to --iterations (default paper)")
     p.add_argument("--iterations", type=int, default=None, help="iterations (default 30000, quick: 3000)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the view order (default 0)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the view order (default 0)")
     p.add_argument("--downscale", type=int, default=1, help="shrink the images by this factor (default 1)")
-    p.add_argument("--indoor", action="store_true", help="the indoor constants of method.md")
+    p.add_argument("--indoor", action="store_const", const=True, default=None, help="the indoor constants of method.md")
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.npz")
     p.add_argument("--log-every", type=int, default=None, help="iterations between log lines (default 100, "
                                                                   "quick: 25)")
-    p.add_argument("--checkpoint-every", type=int, default=1000, help="iterations between checkpoints (0: only at "
+    p.add_argument("--checkpoint-every", type=int, default=None, help="iterations between checkpoints (0: only at "
                                                                        "the end or on Ctrl-C; default 1000)")
     p.add_argument("--max-vertices", type=int, default=None, help="densification cap (default 3000000, method.md)")
     p.add_argument("--densify-stop", type=float, default=None,
                    help="stop densifying when the mean training L1 of the last 3 topology windows improved by less "
                         "than this fraction on the 3 before (default 0.01; 0: never)")
+    p.add_argument("--no-topology", dest="topology", action="store_const", const=False, default=None,
+                   help="no pruning or densification during training (the final cleanup still runs)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
     return p
@@ -75,14 +80,50 @@ def _load(scene_arg, downscale, seed):
     return load_scene(scene_arg, downscale=downscale, seed=seed)
 
 
+def load_config_file(path):
+    """The keys of a ``--config`` file (JSON, or TOML by its ``.toml`` suffix), checked
+    against :class:`~.trainer.TrainConfig`'s fields (``adapter``, written to config.json, is
+    ignored)."""
+    from dataclasses import fields
+    from .trainer import TrainConfig
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"--config {path}: no such file")
+    try:
+        if path.suffix.lower() == ".toml":
+            import tomllib
+            data = tomllib.loads(path.read_text())
+        else:
+            data = json.loads(path.read_text())
+    except Exception as exc:
+        raise ValueError(f"--config {path}: not valid {'TOML' if path.suffix.lower() == '.toml' else 'JSON'} "
+                         f"({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"--config {path}: expected a table of settings")
+    known = {f.name for f in fields(TrainConfig)}
+    unknown = sorted(set(data) - known - {"adapter"})
+    if unknown:
+        raise ValueError(f"--config {path}: unknown keys {unknown}; known: {sorted(known)}")
+    data.pop("adapter", None)
+    return data
+
+
 def run_train(args):
     from ..cli import atomic_write_image
     from ..renderer import Renderer
     from .trainer import TrainConfig, Trainer
     if args.downscale < 1:
         raise ValueError(f"--downscale: expected an integer >= 1, got {args.downscale}")
-    quick = args.preset == "quick"
-    iterations = args.iterations if args.iterations is not None else (3000 if quick else 30000)
+    file_cfg = load_config_file(args.config) if args.config else {}
+
+    def pick(flag, key, default):
+        return flag if flag is not None else file_cfg.get(key, default)
+
+    quick = args.preset == "quick" if args.preset is not None else bool(file_cfg.get("quick", False))
+    iterations = pick(args.iterations, "iterations", 3000 if quick else 30000)
+    args.seed = pick(args.seed, "seed", 0)
+    args.indoor = bool(pick(args.indoor, "indoor", False))
+    args.checkpoint_every = pick(args.checkpoint_every, "checkpoint_every", 1000)
     if iterations < 1:
         raise ValueError(f"--iterations: expected an integer >= 1, got {iterations}")
     if args.checkpoint_every < 0:
@@ -94,16 +135,20 @@ def run_train(args):
     if not args.resume and ckpt.exists():
         raise ValueError(f"--out {out}: holds a checkpoint already; add --resume to continue it or choose another "
                         f"folder")
-    log_every = args.log_every if args.log_every is not None else (25 if quick else 100)
+    log_every = pick(args.log_every, "log_every", 25 if quick else 100)
     t0 = time.perf_counter()
     scene = _load(args.scene, args.downscale, args.seed)
-    cfg = TrainConfig(iterations=iterations, quick=quick, indoor=args.indoor, seed=args.seed,
-                      background=tuple(float(x) for x in scene.background), log_every=log_every,
-                      checkpoint_every=args.checkpoint_every,
-                      **({} if args.max_vertices is None else dict(max_vertices=args.max_vertices)),
-                      **({} if args.densify_stop is None else dict(densify_stop_rel=args.densify_stop)),
-                      extra=dict(scene=str(args.scene),
-                                                                          downscale=args.downscale))
+    settings = {**file_cfg, **dict(iterations=iterations, quick=quick, indoor=args.indoor, seed=args.seed,
+                                   log_every=log_every, checkpoint_every=args.checkpoint_every)}
+    settings.setdefault("background", scene.background)
+    settings["background"] = tuple(float(x) for x in settings["background"])
+    for key, flag in (("max_vertices", args.max_vertices), ("densify_stop_rel", args.densify_stop),
+                      ("topology", args.topology)):
+        if flag is not None:
+            settings[key] = flag
+    settings["extra"] = {**settings.get("extra", {}), "scene": str(args.scene), "downscale": args.downscale,
+                         **({"config_file": str(args.config)} if args.config else {})}
+    cfg = TrainConfig(**settings)
     renderer = Renderer(args.adapter)
     out.mkdir(parents=True, exist_ok=True)
     if args.resume:
