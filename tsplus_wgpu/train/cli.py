@@ -42,10 +42,15 @@ def add_train_parser(sub):
     p.add_argument("--densify-stop", type=float, default=None,
                    help="stop densifying when the mean training L1 of the last 3 topology windows improved by less "
                         "than this fraction on the 3 before (default 0.01; 0: never)")
-    p.add_argument("--no-topology", dest="topology", action="store_const", const=False, default=None,
-                   help="no pruning or densification during training (the final cleanup still runs)")
+    p.add_argument("--topology", choices=["on", "off"], default=None,
+                   help="pruning and densification during training (the final cleanup runs either way); default on "
+                        "for the paper preset, off for quick: measured on the procedural scenes, the method's "
+                        "pruning at 300 quick iterations removes nearly every triangle before the opacities have "
+                        "grown (held-out mesh PSNR 11.6 dB on small vs 18.7 dB without)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
+    from ..viewer_cli import add_train_view_args
+    add_train_view_args(p)
     return p
 
 
@@ -142,8 +147,9 @@ def run_train(args):
                                    log_every=log_every, checkpoint_every=args.checkpoint_every)}
     settings.setdefault("background", scene.background)
     settings["background"] = tuple(float(x) for x in settings["background"])
+    settings.setdefault("topology", not quick)
     for key, flag in (("max_vertices", args.max_vertices), ("densify_stop_rel", args.densify_stop),
-                      ("topology", args.topology)):
+                      ("topology", None if args.topology is None else args.topology == "on")):
         if flag is not None:
             settings[key] = flag
     settings["extra"] = {**settings.get("extra", {}), "scene": str(args.scene), "downscale": args.downscale,
@@ -161,6 +167,8 @@ def run_train(args):
     print(f"scene: {args.scene} ({len(scene.train_indices)} training / {len(scene.test_indices)} held-out views, "
           f"{scene.cameras[0].width}x{scene.cameras[0].height}); model {trainer.n} vertices / {trainer.m} triangles; "
           f"from iteration {trainer.iteration} to {iterations} (loaded in {time.perf_counter() - t0:.1f}s)")
+    from ..viewer_cli import attach_live_viewer
+    viewer = attach_live_viewer(trainer, args, scene)   # --view: the live window, drawn between steps
     psnr0 = None
     if trainer.iteration == 0:
         psnr0 = trainer.evaluate()[0]
@@ -170,6 +178,9 @@ def run_train(args):
         print(f"tsplus: interrupted at iteration {trainer.iteration}; checkpoint saved to {ckpt} "
               f"(continue with --resume)")
         return 130
+    finally:
+        if viewer is not None:
+            viewer.close()
     soft_psnr, soft_ssim, _ = trainer.evaluate()
     pos, tri, col = trainer.final_mesh()
     mesh_model = Trainer.mesh_model(pos, tri, col)
