@@ -53,7 +53,15 @@ if ! "$VENV/bin/python" -c 'import sys; from tsplus_wgpu.gpu import list_adapter
         || { echo "ci/setup.sh: still no Vulkan adapter after installing lavapipe" >&2; exit 1; }
 fi
 
-# 4. The Khronos glTF validator for the export tests (node + npm only when node is missing)
+# 4. The viewer's window tests: Xvfb (a virtual display) and the GLFW library, when missing
+if ! command -v Xvfb >/dev/null 2>&1; then
+    apt_install xvfb
+fi
+if ! "$VENV/bin/python" -c 'import glfw' >/dev/null 2>&1; then
+    apt_install libglfw3
+fi
+
+# 5. The Khronos glTF validator for the export tests (node + npm only when node is missing)
 if ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
     apt_install nodejs npm
 fi

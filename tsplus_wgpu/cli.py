@@ -20,6 +20,8 @@ examples:
   tsplus train --out runs/small         train on the built-in scene (add --preset quick --iterations 300)
   tsplus export runs/small --format glb --y-up   engine-ready mesh (ply|glb|obj)
   tsplus eval runs/small procedural:small        held-out PSNR/SSIM of the mesh as an engine draws it
+  tsplus view runs/small                         fly through the result (window; --screenshot out.png --camera N headless)
+  tsplus train --out runs/live --view            watch training live in a window
 
 environment:
   TSPLUS_ADAPTER   adapter to use (substring of its name; 'lavapipe' = Mesa's CPU driver)
@@ -81,6 +83,8 @@ def build_parser():
         data_cli.add_inspect_parser(sub)
     except ImportError:  # pragma: no cover
         pass
+    from .viewer_cli import add_parsers as add_viewer_parsers
+    add_viewer_parsers(sub)
     try:
         from . import bench_backward  # noqa: F401  (its own parser: main() hands it the arguments)
         sub.add_parser("bench-backward", help="benchmark forward + backward per stage (tsplus bench-backward --help)",
@@ -203,6 +207,12 @@ def main(argv=None):
         if args.command == "eval":
             from .evaluate import run_eval
             return run_eval(args)
+        if args.command == "view":
+            from .viewer_cli import run_view
+            return run_view(args)
+        if args.command == "bench-viewer":
+            from .viewer_cli import run_bench_viewer
+            return run_bench_viewer(args)
         if args.command == "inspect":
             from .data import cli as data_cli
             return data_cli.run_inspect(args)

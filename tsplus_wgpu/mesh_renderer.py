@@ -24,7 +24,7 @@ DEPTH_FORMAT = wgpu.TextureFormat.depth32float
 ROW_ALIGN = 256  # bytes_per_row of a texture-to-buffer copy must be a multiple of this
 
 #: host side of ``struct MeshParams`` (mat4x4 is not in the reflected types; checked in tests)
-PARAMS_DTYPE = np.dtype({"names": ["clip_from_world", "view_z", "near", "drop_near", "linear_color", "_pad"],
+PARAMS_DTYPE = np.dtype({"names": ["clip_from_world", "view_z", "near", "drop_near", "linear_color", "color_sh_dc"],
                          "formats": [("<f4", (16,)), ("<f4", (4,)), "<f4", "<u4", "<u4", "<u4"],
                          "offsets": [0, 64, 80, 84, 88, 92], "itemsize": 96})
 
@@ -99,13 +99,27 @@ class MeshRenderer:
         self.bgl = dev.create_bind_group_layout(entries=[{
             "binding": 0, "visibility": wgpu.ShaderStage.VERTEX | wgpu.ShaderStage.FRAGMENT,
             "buffer": {"type": wgpu.BufferBindingType.uniform}}])
-        layout = dev.create_pipeline_layout(bind_group_layouts=[self.bgl])
-        vb = lambda loc: {"array_stride": 12, "step_mode": wgpu.VertexStepMode.vertex,  # noqa: E731
-                          "attributes": [{"format": wgpu.VertexFormat.float32x3, "offset": 0,
-                                          "shader_location": loc}]}
-        self.pipeline = dev.create_render_pipeline(
-            layout=layout, label="mesh_raster",
-            vertex={"module": self.module, "entry_point": "vs_main", "buffers": [vb(0), vb(1)]},
+        self._layout = dev.create_pipeline_layout(bind_group_layouts=[self.bgl])
+        self._pipelines = {}
+        self.pipeline = self._pipeline(12)
+        self._targets = {}
+        self._geometry = None   # (key, vertex buffer, colour buffer, index buffer, count)
+
+    def _pipeline(self, color_stride):
+        """The render pipeline whose colour attribute is read every ``color_stride`` bytes
+        (12: one RGB per vertex; 12 K: the DC row of a renderer-layout SH buffer [N, K, 3])."""
+        if color_stride not in self._pipelines:
+            self._pipelines[color_stride] = self._create_pipeline(color_stride)
+        return self._pipelines[color_stride]
+
+    def _create_pipeline(self, color_stride):
+        dev = self.ctx.device
+        vb = lambda loc, stride: {"array_stride": stride, "step_mode": wgpu.VertexStepMode.vertex,  # noqa: E731
+                                  "attributes": [{"format": wgpu.VertexFormat.float32x3, "offset": 0,
+                                                  "shader_location": loc}]}
+        return dev.create_render_pipeline(
+            layout=self._layout, label="mesh_raster",
+            vertex={"module": self.module, "entry_point": "vs_main", "buffers": [vb(0, 12), vb(1, color_stride)]},
             primitive={"topology": wgpu.PrimitiveTopology.triangle_list, "cull_mode": wgpu.CullMode.none,
                        "front_face": wgpu.FrontFace.ccw},
             depth_stencil={"format": DEPTH_FORMAT, "depth_write_enabled": True,
@@ -113,8 +127,6 @@ class MeshRenderer:
             multisample={"count": 1},
             fragment={"module": self.module, "entry_point": "fs_main",
                       "targets": [{"format": COLOR_FORMAT}]})
-        self._targets = {}
-        self._geometry = None   # (key, vertex buffer, colour buffer, index buffer, count)
 
     @property
     def adapter_name(self):
@@ -148,6 +160,45 @@ class MeshRenderer:
                                                usage=wgpu.BufferUsage.INDEX | wgpu.BufferUsage.COPY_DST)
             self._geometry = (key, vbuf, cbuf, ibuf, int(idx.size))
         return self._geometry[1:]
+
+    def draw(self, encoder, color_view, depth_view, camera: Camera, positions, colors, triangles, num_triangles,
+             sh_size=None, near=0.01, drop_near=True):
+        """Record a draw of caller-owned device buffers into caller-owned targets (no upload,
+        no readback): how the live viewer draws the trainer's own buffers.
+
+        Args:
+            encoder: a wgpu command encoder (the render pass is recorded into it).
+            color_view, depth_view: views of an ``rgba32float`` and a ``depth32float`` texture of
+                the camera's size; both are cleared (rgb = colour, a = camera z, 0 where nothing).
+            camera: the :class:`Camera`.
+            positions: buffer of f32 ``[N, 3]`` (usage VERTEX).
+            colors: buffer of f32 ``[N, 3]`` colours, or with ``sh_size = K`` the renderer's SH
+                layout f32 ``[N, K, 3]`` whose DC row gives ``max(0, C0 dc + 0.5)`` (usage VERTEX).
+            triangles: buffer of u32 ``[M, 3]`` (usage INDEX); ``num_triangles``: M.
+        """
+        params = np.zeros((), PARAMS_DTYPE)
+        params["clip_from_world"] = (clip_from_camera(camera, near) @ camera.world_to_camera).T.ravel()
+        params["view_z"] = camera.world_to_camera[2]
+        params["near"] = near
+        params["drop_near"] = 1 if drop_near else 0
+        params["color_sh_dc"] = 1 if sh_size else 0
+        dev = self.ctx.device
+        ubuf = dev.create_buffer_with_data(data=params.tobytes(), usage=wgpu.BufferUsage.UNIFORM)
+        bind = dev.create_bind_group(layout=self.bgl, entries=[
+            {"binding": 0, "resource": {"buffer": ubuf, "offset": 0, "size": PARAMS_DTYPE.itemsize}}])
+        rp = encoder.begin_render_pass(
+            color_attachments=[{"view": color_view, "clear_value": (0.0, 0.0, 0.0, 0.0),
+                                "load_op": wgpu.LoadOp.clear, "store_op": wgpu.StoreOp.store}],
+            depth_stencil_attachment={"view": depth_view, "depth_clear_value": 0.0,
+                                      "depth_load_op": wgpu.LoadOp.clear, "depth_store_op": wgpu.StoreOp.store})
+        if num_triangles:
+            rp.set_pipeline(self._pipeline(12 * int(sh_size) if sh_size else 12))
+            rp.set_bind_group(0, bind)
+            rp.set_vertex_buffer(0, positions)
+            rp.set_vertex_buffer(1, colors)
+            rp.set_index_buffer(triangles, wgpu.IndexFormat.uint32)
+            rp.draw_indexed(3 * int(num_triangles))
+        rp.end()
 
     def render(self, mesh, camera: Camera, supersample=1, background=(0.0, 0.0, 0.0), near=0.01,
                drop_near=True, interpolation="perspective"):

@@ -1,5 +1,18 @@
 """Live preview window for tsplus-wgpu (rendercanvas + wgpu), built only on the public API.
 
-Shipped inside the wheel as ``tsplus_wgpu.viewer``. The window itself is the subject of
-the live-preview issue and is not implemented yet; nothing here claims otherwise.
+Shipped inside the wheel as ``tsplus_wgpu.viewer``:
+
+* :class:`Viewer` shows a :class:`ModelSource` (a file's model) or a :class:`TrainerSource`
+  (a live trainer's device buffers, drawn without a copy) in a glfw window, or in an offscreen
+  canvas for headless images; :meth:`Viewer.training_hook` draws between training steps at a
+  capped frame rate.
+* :mod:`.controls`: orbit / pan / zoom / fly camera math and the event mapping (no window).
+* :mod:`.font`: the HUD's bitmap font.
 """
+
+from .app import (NO_DISPLAY_HINT, FrameRenderer, ModelSource, NoDisplayError, TrainerSource, Viewer,
+                  display_problem)
+from .controls import InputController, OrbitCamera
+
+__all__ = ["Viewer", "ModelSource", "TrainerSource", "FrameRenderer", "OrbitCamera", "InputController",
+           "NoDisplayError", "display_problem", "NO_DISPLAY_HINT"]

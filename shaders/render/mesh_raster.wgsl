@@ -18,7 +18,7 @@ struct MeshParams {
     near: f32,
     drop_near: u32,          // 1: a triangle with any vertex at z <= near is not drawn at all
     linear_color: u32,       // 1: colour interpolated affinely in screen space (as the splatting model)
-    _pad: u32,
+    color_sh_dc: u32,        // 1: the colour attribute is an SH DC row: colour = max(0, C0 dc + 0.5)
 }
 
 @group(0) @binding(0) var<uniform> params: MeshParams;
@@ -39,9 +39,13 @@ fn vs_main(@location(0) position: vec3<f32>, @location(1) color: vec3<f32>) -> V
     var out: VertexOut;
     let p = vec4<f32>(position, 1.0);
     out.clip = params.clip_from_world * p;
-    out.color_perspective = color;
+    var c = color;
+    if (params.color_sh_dc != 0u) {
+        c = max(color * 0.28209479177387814 + vec3<f32>(0.5), vec3<f32>(0.0));
+    }
+    out.color_perspective = c;
     let z = dot(params.view_z, p);
-    out.color_z = color * z;
+    out.color_z = c * z;
     out.z_cam = z;
     // > 0 everywhere inside a triangle that has a vertex at or behind the near plane
     out.behind = select(0.0, 1.0, z <= params.near);

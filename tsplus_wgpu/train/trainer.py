@@ -158,6 +158,10 @@ class Trainer:
         self.adam = Adam(c)
         self.reg = OpacityReg(c, self.renderer.scratch)
         self._targets = {}
+        #: callables ``hook(trainer, stats)`` run after every step (the live viewer); one that
+        #: returns False stops training as Ctrl-C does (checkpoint, KeyboardInterrupt)
+        self.step_hooks = []
+        self.last_stats = None
         self.topology = TopologyStrategy(self.sched, seed=config.seed, max_vertices=config.max_vertices,
                                          stop_rel=config.densify_stop_rel, stop_windows=config.densify_stop_windows,
                                          enabled=config.topology, near=config.near)
@@ -178,7 +182,12 @@ class Trainer:
         pos = np.ascontiguousarray(positions, np.float32)
         sh_planar = np.ascontiguousarray(np.asarray(sh, np.float32).transpose(1, 0, 2))
         w = np.ascontiguousarray(logits, np.float32)
-        self.params = dict(positions=c.upload(pos, "positions"), sh=c.upload(sh_planar, "sh_planar"),
+        # positions, triangles and the renderer-layout SH double as vertex / index buffers: the
+        # live viewer (tsplus train --view) draws them as they are, no copy
+        import wgpu
+        rw = wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST
+        self.params = dict(positions=c.upload(pos, "positions", usage=rw | wgpu.BufferUsage.VERTEX),
+                           sh=c.upload(sh_planar, "sh_planar"),
                            logits=c.upload(w, "logits"))
         sizes = dict(positions=3 * n, sh=3 * n * k, logits=n)
         self.moments = {}
@@ -191,8 +200,9 @@ class Trainer:
                                  c.upload(np.asarray(m2, np.float32), f"exp_avg_sq_{key}"))
         self.sizes = sizes
         render = dict(positions=self.params["positions"], triangles=c.upload(self.triangles_host.astype(np.uint32),
-                                                                             "triangles"),
-                      sh=c.buffer(12 * n * k, "render_sh"), opacity=c.buffer(4 * n, "render_opacity"))
+                                                                             "triangles", usage=rw | wgpu.BufferUsage.INDEX),
+                      sh=c.buffer(12 * n * k, "render_sh", usage=rw | wgpu.BufferUsage.VERTEX),
+                      opacity=c.buffer(4 * n, "render_opacity"))
         self.model = DeviceModel(c, render, n, m, k)
         self.gbuf = dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh"),
                          v_opacity=c.buffer(4 * n, "v_opacity"))
@@ -308,6 +318,11 @@ class Trainer:
                 self.elapsed = base_elapsed + time.perf_counter() - t0
                 if bar is not None:
                     bar.update(1)
+                if stats is not None:
+                    self.last_stats = dict(stats, iteration=self.iteration)
+                for hook in list(self.step_hooks):
+                    if hook(self, stats) is False:
+                        interrupted.append(1)
                 if stats is not None:
                     now = time.perf_counter()
                     ips = (self.iteration - it_last) / max(now - t_last, 1e-9)

@@ -1,0 +1,562 @@
+"""The viewer: draws a triangle model (a file's, or a live trainer's device buffers) into a
+rendercanvas canvas (a glfw window, or an offscreen canvas for headless images).
+
+A frame: :meth:`MeshRenderer.draw` of the vertex / index buffers into an ``rgba32float``
+target (rgb = colour, a = camera z, 0 = nothing; the same pipeline :meth:`MeshRenderer.render`
+uses), or a line list pulled from the same storage buffers (wireframe), or
+:meth:`Renderer.forward` (the soft splatting render) written into that target; then a
+present pass puts it on the canvas's texture (background where nothing was drawn) with the
+HUD's text mask over the top-left corner. Built only on the public API of ``tsplus_wgpu``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+
+import numpy as np
+import wgpu
+
+from tsplus_wgpu import Camera, DeviceModel, MeshRenderer, Renderer, TriangleModel
+
+from .controls import InputController, OrbitCamera
+from .font import render_text
+
+FLOAT_FORMAT = wgpu.TextureFormat.rgba32float
+DEPTH_FORMAT = wgpu.TextureFormat.depth32float
+SH_C0 = 0.28209479177387814
+
+WIRE_WGSL = """
+struct WireParams { clip_from_world: mat4x4<f32>, sh_size: u32, _p0: u32, _p1: u32, _p2: u32, }
+@group(0) @binding(0) var<uniform> params: WireParams;
+@group(0) @binding(1) var<storage, read> positions: array<f32>;   // [N, 3]
+@group(0) @binding(2) var<storage, read> triangles: array<u32>;   // [M, 3]
+@group(0) @binding(3) var<storage, read> sh: array<f32>;          // [N, K, 3]
+struct Out { @builtin(position) clip: vec4<f32>, @location(0) color: vec3<f32>, }
+@vertex
+fn vs_main(@builtin(vertex_index) vi: u32) -> Out {
+    // line list: 3 edges per triangle, 2 ends per edge
+    let e = vi / 2u;
+    let tri = e / 3u;
+    let corner = (e % 3u + vi % 2u) % 3u;
+    let v = triangles[3u * tri + corner];
+    let p = vec3<f32>(positions[3u * v], positions[3u * v + 1u], positions[3u * v + 2u]);
+    let b = 3u * params.sh_size * v;
+    let dc = vec3<f32>(sh[b], sh[b + 1u], sh[b + 2u]);
+    var out: Out;
+    out.clip = params.clip_from_world * vec4<f32>(p, 1.0);
+    out.color = max(dc * 0.28209479177387814 + vec3<f32>(0.5), vec3<f32>(0.0));
+    return out;
+}
+@fragment
+fn fs_main(in: Out) -> @location(0) vec4<f32> { return vec4<f32>(in.color, 1.0); }
+"""
+
+PRESENT_WGSL = """
+struct PresentParams { background: vec4<f32>, hud_size: vec2<u32>, _p0: u32, _p1: u32, }
+@group(0) @binding(0) var<uniform> params: PresentParams;
+@group(0) @binding(1) var frame: texture_2d<f32>;   // rgba32float: rgb, a = z (0: nothing drawn)
+@group(0) @binding(2) var hud: texture_2d<f32>;     // r8unorm text mask
+@vertex
+fn vs_main(@builtin(vertex_index) vi: u32) -> @builtin(position) vec4<f32> {
+    let x = f32((vi << 1u) & 2u) * 2.0 - 1.0;
+    let y = f32(vi & 2u) * 2.0 - 1.0;
+    return vec4<f32>(x, y, 0.0, 1.0);
+}
+@fragment
+fn fs_main(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
+    let xy = vec2<i32>(pos.xy);
+    let f = textureLoad(frame, xy, 0);
+    var c = select(params.background.rgb, f.rgb, f.a > 0.0);
+    if (u32(xy.x) < params.hud_size.x && u32(xy.y) < params.hud_size.y) {
+        let m = textureLoad(hud, xy, 0).r;
+        c = mix(c * 0.35, vec3<f32>(1.0, 1.0, 0.85), m);
+    }
+    return vec4<f32>(clamp(c, vec3<f32>(0.0), vec3<f32>(1.0)), 1.0);
+}
+"""
+
+NO_DISPLAY_HINT = ("use `tsplus view RUN --screenshot out.png --camera N` for images without a display "
+                   "(or run under xvfb-run)")
+
+
+def display_problem():
+    """Why no window can open here (a short phrase), or None when a display is set."""
+    if sys.platform.startswith(("linux", "freebsd", "openbsd")) and not (
+            os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return "no display (DISPLAY and WAYLAND_DISPLAY are not set)"
+    return None
+
+
+class NoDisplayError(RuntimeError):
+    """No window can be opened: no display, or glfw could not start."""
+
+
+# ---------------------------------------------------------------------------- sources
+class ModelSource:
+    """A :class:`TriangleModel` uploaded once: positions f32 [N, 3], SH f32 [N, K, 3]
+    (the mesh draws its DC row), triangles u32 [M, 3]."""
+
+    def __init__(self, renderer: Renderer, model: TriangleModel, sigma=None, stats=None):
+        dev = renderer.ctx.device
+        self.renderer = renderer
+        self.model = model
+        usage = wgpu.BufferUsage.VERTEX | wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.INDEX
+
+        def up(a):
+            b = np.ascontiguousarray(a).tobytes()
+            return dev.create_buffer_with_data(data=b + bytes(-len(b) % 16 or (16 if not b else 0)), usage=usage)
+
+        self.buffers = dict(positions=up(model.positions.astype(np.float32)),
+                            sh=up(model.sh.astype(np.float32)),
+                            triangles=up(model.triangles.astype(np.uint32)))
+        self.num_vertices, self.num_triangles, self.sh_size = model.num_vertices, model.num_triangles, model.sh_size
+        self.sigma = sigma
+        self.stats = dict(stats or {})
+        self._device_model = None
+
+    @property
+    def has_splat(self):
+        """Whether the model carries splatting data (opacity below 1 or SH beyond DC)."""
+        return self.model.sh_size > 1 or bool(np.any(self.model.opacity < 1.0))
+
+    def splat_model(self):
+        if self._device_model is None:
+            self._device_model = DeviceModel.from_model(self.renderer, self.model)
+        return self._device_model
+
+    def refresh(self):
+        pass
+
+
+class TrainerSource:
+    """A live trainer's device buffers, read every frame (topology edits replace them)."""
+
+    has_splat = True
+
+    def __init__(self, trainer):
+        self.trainer = trainer
+        self.renderer = trainer.renderer
+        self.refresh()
+
+    def refresh(self):
+        t = self.trainer
+        b = t.model.buffers
+        self.buffers = dict(positions=b["positions"], sh=b["sh"], triangles=b["triangles"])
+        self.num_vertices, self.num_triangles, self.sh_size = t.model.num_vertices, t.model.num_triangles, \
+            t.model.sh_size
+        self.sigma = t.sched.sigma(max(t.iteration, 1))
+        s = t.last_stats or {}
+        self.stats = dict(iteration=t.iteration, loss=s.get("loss"), psnr=s.get("psnr"))
+
+    def splat_model(self):
+        return self.trainer.model
+
+
+# ---------------------------------------------------------------------------- frames
+class FrameRenderer:
+    """Records one frame of a source into a texture view of any colour format."""
+
+    def __init__(self, renderer: Renderer, mesh_renderer: MeshRenderer | None = None, background=(0, 0, 0)):
+        self.renderer = renderer
+        self.ctx = renderer.ctx
+        self.mesh = mesh_renderer or MeshRenderer(renderer.ctx)
+        self.background = tuple(float(x) for x in background)
+        dev = self.ctx.device
+        self._wire_module = dev.create_shader_module(code=WIRE_WGSL, label="viewer_wire")
+        self._present_module = dev.create_shader_module(code=PRESENT_WGSL, label="viewer_present")
+        self._wire = dev.create_render_pipeline(
+            layout="auto", label="viewer_wire",
+            vertex={"module": self._wire_module, "entry_point": "vs_main", "buffers": []},
+            primitive={"topology": wgpu.PrimitiveTopology.line_list},
+            fragment={"module": self._wire_module, "entry_point": "fs_main", "targets": [{"format": FLOAT_FORMAT}]})
+        self._present = {}
+        self._targets = None
+        self._hud = None      # (texture, w, h, key)
+        self._hud_size = (0, 0)
+
+    def _present_pipeline(self, fmt):
+        if fmt not in self._present:
+            dev = self.ctx.device
+            self._present[fmt] = dev.create_render_pipeline(
+                layout="auto", label="viewer_present",
+                vertex={"module": self._present_module, "entry_point": "vs_main", "buffers": []},
+                primitive={"topology": wgpu.PrimitiveTopology.triangle_list},
+                fragment={"module": self._present_module, "entry_point": "fs_main", "targets": [{"format": fmt}]})
+        return self._present[fmt]
+
+    def _frame_targets(self, w, h):
+        if self._targets is None or self._targets[0] != (w, h):
+            dev = self.ctx.device
+            color = dev.create_texture(size=(w, h, 1), format=FLOAT_FORMAT,
+                                       usage=wgpu.TextureUsage.RENDER_ATTACHMENT | wgpu.TextureUsage.TEXTURE_BINDING
+                                       | wgpu.TextureUsage.COPY_DST)
+            depth = dev.create_texture(size=(w, h, 1), format=DEPTH_FORMAT, usage=wgpu.TextureUsage.RENDER_ATTACHMENT)
+            self._targets = ((w, h), color, color.create_view(), depth.create_view())
+        return self._targets[1:]
+
+    def set_hud(self, lines, scale=2):
+        """Text lines for the HUD (None or [] hides it)."""
+        if not lines:
+            self._hud_size = (0, 0)
+            return
+        mask = render_text(lines, scale)
+        h, w = mask.shape
+        dev = self.ctx.device
+        if self._hud is None or self._hud[1] < w or self._hud[2] < h:
+            tw, th = max(w, 256), max(h, 64)
+            tex = dev.create_texture(size=(tw, th, 1), format=wgpu.TextureFormat.r8unorm,
+                                     usage=wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST)
+            self._hud = (tex, tw, th)
+        self.ctx.queue.write_texture({"texture": self._hud[0], "mip_level": 0, "origin": (0, 0, 0)},
+                                     np.ascontiguousarray(mask), {"offset": 0, "bytes_per_row": w, "rows_per_image": h},
+                                     (w, h, 1))
+        self._hud_size = (w, h)
+
+    def record(self, encoder, target_view, target_format, camera: Camera, source, mode="mesh", near=0.01):
+        """Record the frame of ``source`` seen by ``camera`` into ``target_view``.
+        ``mode``: ``"mesh"`` (opaque, depth-tested), ``"wire"`` or ``"splat"``."""
+        dev = self.ctx.device
+        color, color_view, depth_view = self._frame_targets(camera.width, camera.height)
+        b = source.buffers
+        if mode == "splat" and source.has_splat:
+            img = self.renderer.forward(source.splat_model(), camera, source.sigma, self.background, near).image
+            rgba = np.concatenate([img, np.ones(img.shape[:2] + (1,), np.float32)], axis=2)
+            self.ctx.queue.write_texture({"texture": color, "mip_level": 0, "origin": (0, 0, 0)},
+                                         np.ascontiguousarray(rgba, np.float32),
+                                         {"offset": 0, "bytes_per_row": 16 * camera.width,
+                                          "rows_per_image": camera.height}, (camera.width, camera.height, 1))
+        elif mode == "wire":
+            params = np.zeros(20, np.float32)
+            from tsplus_wgpu.mesh_renderer import clip_from_camera
+            params[:16] = (clip_from_camera(camera, near) @ camera.world_to_camera).T.ravel()
+            params[16:17].view(np.uint32)[0] = source.sh_size
+            ubuf = dev.create_buffer_with_data(data=params.tobytes() + bytes(12), usage=wgpu.BufferUsage.UNIFORM)
+            bind = dev.create_bind_group(layout=self._wire.get_bind_group_layout(0), entries=[
+                {"binding": 0, "resource": {"buffer": ubuf}},
+                {"binding": 1, "resource": {"buffer": b["positions"]}},
+                {"binding": 2, "resource": {"buffer": b["triangles"]}},
+                {"binding": 3, "resource": {"buffer": b["sh"]}}])
+            rp = encoder.begin_render_pass(color_attachments=[{
+                "view": color_view, "clear_value": (0.0, 0.0, 0.0, 0.0), "load_op": wgpu.LoadOp.clear,
+                "store_op": wgpu.StoreOp.store}])
+            if source.num_triangles:
+                rp.set_pipeline(self._wire)
+                rp.set_bind_group(0, bind)
+                rp.draw(6 * source.num_triangles)
+            rp.end()
+        else:
+            self.mesh.draw(encoder, color_view, depth_view, camera, b["positions"], b["sh"], b["triangles"],
+                           source.num_triangles, sh_size=source.sh_size, near=near)
+        if self._hud is None:
+            self.set_hud(["."])
+            self._hud_size = (0, 0)
+        pp = np.zeros(8, np.float32)
+        pp[:3] = self.background
+        pp[4:6].view(np.uint32)[:] = self._hud_size
+        ubuf = dev.create_buffer_with_data(data=pp.tobytes(), usage=wgpu.BufferUsage.UNIFORM)
+        pipe = self._present_pipeline(target_format)
+        bind = dev.create_bind_group(layout=pipe.get_bind_group_layout(0), entries=[
+            {"binding": 0, "resource": {"buffer": ubuf}},
+            {"binding": 1, "resource": color_view},
+            {"binding": 2, "resource": self._hud[0].create_view()}])
+        rp = encoder.begin_render_pass(color_attachments=[{
+            "view": target_view, "clear_value": (0.0, 0.0, 0.0, 1.0), "load_op": wgpu.LoadOp.clear,
+            "store_op": wgpu.StoreOp.store}])
+        rp.set_pipeline(pipe)
+        rp.set_bind_group(0, bind)
+        rp.draw(3)
+        rp.end()
+
+
+# ---------------------------------------------------------------------------- the viewer
+class Viewer:
+    """A window (or offscreen canvas) showing ``source`` with orbit / fly controls.
+
+    Args:
+        source: a :class:`ModelSource` or :class:`TrainerSource`.
+        cameras: the scene's cameras (snap targets), or None.
+        size: (width, height) of the canvas; default: the first camera's (at most 1280 wide).
+        offscreen: True for an offscreen canvas (no window; :meth:`frame` returns the image).
+        background: RGB where nothing is drawn.
+        hud: show the HUD text.
+        max_fps: frame-rate cap of :meth:`run` and of the live hook.
+        screenshot_dir: folder of the screenshot key's PNGs.
+    """
+
+    def __init__(self, source, cameras=None, size=None, offscreen=False, background=(0, 0, 0), hud=True,
+                 max_fps=30.0, screenshot_dir=".", title="tsplus view", camera_index=None):
+        self.source = source
+        self.cameras = list(cameras or [])
+        self.renderer = source.renderer
+        self.frames = FrameRenderer(self.renderer, background=background)
+        self.offscreen = offscreen
+        self.hud = hud
+        self.max_fps = float(max_fps)
+        self.mode = "mesh"
+        self.wire = False
+        self.screenshot_dir = screenshot_dir
+        self.camera_index = None
+        if size is None:
+            if self.cameras:
+                c = self.cameras[0 if camera_index is None else camera_index]
+                s = min(1.0, 1280 / c.width)
+                size = (max(1, round(c.width * s)), max(1, round(c.height * s)))
+            else:
+                size = (960, 720)
+        self.size = tuple(int(v) for v in size)
+        self._home = self._initial_camera()
+        self.controller = InputController(self._home)
+        if camera_index is not None:
+            self.snap(camera_index)
+        self._frame_times = []
+        self._last_frame = None
+        self._capture = None
+        self.last_image = None
+        self.closed = False
+        self._open_canvas(title)
+
+    # ------------------------------------------------------------------ setup
+    def _initial_camera(self):
+        pos = getattr(self.source, "model", None)
+        if self.cameras:
+            cam = self.cameras[0]
+            return OrbitCamera.from_camera(cam, distance=self._focus_distance(cam), up=self._scene_up())
+        if isinstance(pos, TriangleModel) and pos.num_vertices:
+            lo, hi = pos.positions.min(0), pos.positions.max(0)
+        else:
+            lo, hi = -np.ones(3), np.ones(3)
+        w, h = self.size
+        return OrbitCamera.look_at_bounds(lo, hi, w, h)
+
+    def _scene_up(self):
+        ups = [-c.R.T[:, 1] for c in self.cameras]
+        u = np.mean(ups, axis=0)
+        return u / max(np.linalg.norm(u), 1e-12) if np.linalg.norm(u) > 1e-6 else ups[0]
+
+    def _focus_distance(self, cam):
+        """Distance along the optical axis to the scene's cameras' centroid look point (a
+        sensible orbit radius); 1 without better information."""
+        centers = np.array([c.center for c in self.cameras])
+        mid = centers.mean(0)
+        d = float(np.dot(mid - cam.center, cam.R[2]))
+        spread = float(np.linalg.norm(centers - mid, axis=1).mean())
+        return d if d > 1e-3 else max(spread, 1.0)
+
+    def _open_canvas(self, title):
+        w, h = self.size
+        dev = self.renderer.ctx.device
+        if self.offscreen:
+            from rendercanvas.offscreen import RenderCanvas
+            self.canvas = RenderCanvas(size=(w, h), pixel_ratio=1.0, format="rgba-u8")
+            self.context = self.canvas.get_wgpu_context()
+            self.format = wgpu.TextureFormat.rgba8unorm
+            self.context.configure(device=dev, format=self.format, usage=wgpu.TextureUsage.RENDER_ATTACHMENT
+                                   | wgpu.TextureUsage.COPY_SRC)
+        else:
+            why = display_problem()
+            if why:
+                raise NoDisplayError(why)
+            try:
+                from rendercanvas.glfw import RenderCanvas
+                self.canvas = RenderCanvas(size=(w, h), title=title, update_mode="manual")
+            except Exception as exc:   # glfw missing, or it cannot reach the display
+                raise NoDisplayError(f"the window could not open ({type(exc).__name__}: {exc})") from None
+            self.context = self.canvas.get_wgpu_context()
+            # a plain (not sRGB) 8-bit format: colours reach the screen as the mesh renderer computes them
+            preferred = self.context.get_preferred_format(self.renderer.ctx.adapter)
+            for fmt in ("bgra8unorm", "rgba8unorm", str(preferred).replace("-srgb", ""), preferred):
+                try:
+                    self.context.configure(device=dev, format=fmt, alpha_mode="opaque",
+                                           usage=wgpu.TextureUsage.RENDER_ATTACHMENT | wgpu.TextureUsage.COPY_SRC)
+                    self.format = fmt
+                    break
+                except Exception as exc:   # not supported by this surface: try the next
+                    err = exc
+            else:
+                raise NoDisplayError(f"the window's surface takes none of the usual formats ({err})")
+            self.canvas.add_event_handler(self._on_event, "pointer_down", "pointer_up", "pointer_move", "wheel",
+                                          "key_down", "key_up", "close")
+        self.canvas.request_draw(self._draw)
+
+    def _on_event(self, event):
+        if event.get("event_type") == "close":
+            self.closed = True
+            return
+        self.controller.handle(event)
+
+    # ------------------------------------------------------------------ actions
+    def snap(self, index):
+        """Put the view on scene camera ``index`` (modulo their number)."""
+        if not self.cameras:
+            return
+        self.camera_index = int(index) % len(self.cameras)
+        cam = self.cameras[self.camera_index]
+        self.controller.camera = OrbitCamera.from_camera(cam, distance=self._focus_distance(cam),
+                                                         up=self._scene_up())
+
+    def _apply(self, actions):
+        for a in actions:
+            if a == "next_camera":
+                self.snap(0 if self.camera_index is None else self.camera_index + 1)
+            elif a == "previous_camera":
+                self.snap(-1 if self.camera_index is None else self.camera_index - 1)
+            elif a == "toggle_wireframe":
+                self.wire = not self.wire
+            elif a == "toggle_splat":
+                self.mode = "mesh" if self.mode == "splat" else "splat"
+            elif a == "toggle_hud":
+                self.hud = not self.hud
+            elif a == "reset":
+                self.camera_index = None
+                self.controller.camera = self._initial_camera()
+            elif a == "screenshot":
+                path = os.path.join(self.screenshot_dir, time.strftime("tsplus_%Y%m%d_%H%M%S.png"))
+                self._capture = path
+            elif a == "close":
+                self.close()
+
+    def current_camera(self) -> Camera:
+        return self.controller.camera.camera(*self.size)
+
+    def fps(self):
+        """Frames per second over the last (up to) 30 frames."""
+        t = self._frame_times[-31:]
+        return (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else 0.0
+
+    def hud_lines(self):
+        s = self.source.stats or {}
+        it, loss, ps = s.get("iteration"), s.get("loss"), s.get("psnr")
+        mode = "WIRE" if self.wire else self.mode.upper()
+        if self.mode == "splat" and not self.source.has_splat:
+            mode += " (NO SPLAT DATA)"
+        cam = f"CAM {self.camera_index}/{len(self.cameras)}" if self.camera_index is not None else "FREE"
+        return [f"ITER {it if it is not None else '-'}  LOSS {'-' if loss is None else f'{loss:.4f}'}  "
+                f"PSNR {'-' if ps is None else f'{ps:.2f}'}",
+                f"VERTS {self.source.num_vertices}  TRIS {self.source.num_triangles}",
+                f"FPS {self.fps():.1f}  {mode}  {cam}{'  FLY' if self.controller.fly_mode else ''}"]
+
+    # ------------------------------------------------------------------ drawing
+    def _draw(self):
+        tex = self.context.get_current_texture()
+        w, h = tex.width, tex.height
+        if (w, h) != self.size:
+            self.size = (w, h)
+        self.source.refresh()
+        self.frames.set_hud(self.hud_lines() if self.hud else None)
+        cam = self.current_camera()
+        enc = self.renderer.ctx.device.create_command_encoder()
+        mode = "wire" if self.wire else self.mode
+        self.frames.record(enc, tex.create_view(), self.format, cam, self.source, mode)
+        readback = None
+        if self._capture is not None and not self.offscreen:
+            row = (4 * w + 255) // 256 * 256
+            readback = self.renderer.ctx.device.create_buffer(size=row * h, usage=wgpu.BufferUsage.COPY_DST
+                                                              | wgpu.BufferUsage.MAP_READ)
+            enc.copy_texture_to_buffer({"texture": tex, "mip_level": 0, "origin": (0, 0, 0)},
+                                       {"buffer": readback, "offset": 0, "bytes_per_row": row, "rows_per_image": h},
+                                       (w, h, 1))
+        self.renderer.ctx.queue.submit([enc.finish()])
+        if readback is not None:
+            readback.map_sync(wgpu.MapMode.READ)
+            raw = np.frombuffer(readback.read_mapped(), np.uint8).copy()
+            readback.unmap()
+            img = raw.reshape(h, -1)[:, :4 * w].reshape(h, w, 4)
+            if str(self.format).startswith("bgra"):
+                img = img[..., [2, 1, 0, 3]]
+            self._store_capture(img)
+
+    def _store_capture(self, img):
+        self.last_image = np.ascontiguousarray(img[..., :3])
+        path, self._capture = self._capture, None
+        if isinstance(path, str):
+            import imageio.v3 as iio
+            iio.imwrite(path, self.last_image)
+            print(f"tsplus view: saved {path}", flush=True)
+
+    def process_events(self):
+        """Pull the window's events into the controller (no-op offscreen)."""
+        if self.offscreen or self.closed:
+            return
+        try:
+            self.canvas._process_events()
+        except AttributeError:   # pragma: no cover (rendercanvas without it)
+            import glfw
+            glfw.poll_events()
+        if self.canvas.get_closed():
+            self.closed = True
+
+    def frame(self, capture=False):
+        """Process events, apply held keys and actions, draw one frame. Returns the frame as
+        uint8 [H, W, 3] when ``capture`` (or offscreen), else None."""
+        now = time.perf_counter()
+        self.process_events()
+        if self.closed:
+            return None
+        dt = 0.0 if self._last_frame is None else min(now - self._last_frame, 0.25)
+        self._last_frame = now
+        self.controller.update(dt)
+        self._apply(self.controller.take_actions())
+        if self.closed:
+            return None
+        if capture and self._capture is None:
+            self._capture = True
+        if self.offscreen:
+            img = self.canvas.draw()
+            self._frame_times.append(time.perf_counter())
+            img = np.asarray(img)
+            if self._capture is not None:
+                self._store_capture(img)
+            return np.ascontiguousarray(img[..., :3])
+        self.canvas.force_draw()
+        self._frame_times.append(time.perf_counter())
+        del self._frame_times[:-64]
+        if capture:
+            return self.last_image
+        return None
+
+    def run(self):
+        """The interactive loop (until the window closes), at most ``max_fps`` frames/s."""
+        period = 1.0 / self.max_fps if self.max_fps > 0 else 0.0
+        while not self.closed:
+            t = time.perf_counter()
+            self.frame()
+            rest = period - (time.perf_counter() - t)
+            if rest > 0:
+                time.sleep(rest)
+
+    def close(self):
+        if not self.closed:
+            self.closed = True
+            try:
+                self.canvas.close()
+                if not self.offscreen:
+                    self.canvas._process_events()
+            except Exception:
+                pass
+
+    # ------------------------------------------------------------------ live training
+    def training_hook(self, stop_on_close=False):
+        """A ``Trainer.step_hooks`` entry: draws at most ``max_fps`` frames/s between steps;
+        when the window closes training goes on (or stops, as Ctrl-C, with ``stop_on_close``)."""
+        period = 1.0 / self.max_fps if self.max_fps > 0 else 0.0
+        state = {"last": -math.inf, "done": False}
+
+        def hook(trainer, stats):
+            if state["done"]:
+                return None
+            now = time.perf_counter()
+            if now - state["last"] < period:
+                return None
+            state["last"] = now
+            self.frame()
+            if self.closed:
+                state["done"] = True
+                if stop_on_close:
+                    print("tsplus: viewer closed; stopping training (--view-close stop)", flush=True)
+                    return False
+                print("tsplus: viewer closed; training continues", flush=True)
+            return None
+        return hook
