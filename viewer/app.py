@@ -314,6 +314,7 @@ class Viewer:
         self._frame_times = []
         self._last_frame = None
         self._capture = None
+        self._hud_lines, self._hud_time = None, -math.inf
         self.last_image = None
         self.closed = False
         self._open_canvas(title)
@@ -445,7 +446,11 @@ class Viewer:
         if (w, h) != self.size:
             self.size = (w, h)
         self.source.refresh()
-        self.frames.set_hud(self.hud_lines() if self.hud else None)
+        lines = self.hud_lines() if self.hud else None
+        now = time.perf_counter()
+        if lines != self._hud_lines and (not lines or not self._hud_lines or now - self._hud_time >= 0.25):
+            self.frames.set_hud(lines)      # text upload at most 4 times a second
+            self._hud_lines, self._hud_time = lines, now
         cam = self.current_camera()
         enc = self.renderer.ctx.device.create_command_encoder()
         mode = "wire" if self.wire else self.mode
