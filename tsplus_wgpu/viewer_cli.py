@@ -291,6 +291,11 @@ def run_bench_viewer(args):
         live.close()
     finally:
         if xvfb is not None:
+            try:   # close glfw's connection before its X server goes away
+                import glfw
+                glfw.terminate()
+            except Exception:
+                pass
             xvfb.kill()
     ips0, ips1 = float(np.median(plain)), float(np.median(viewed))
     result = dict(adapter=renderer.adapter_name, canvas=kind, size=[w, h], triangles=model.num_triangles,
