@@ -13,6 +13,12 @@
   per corner, then summed per vertex with :class:`~tsplus_wgpu.backward.SegmentSum` over the
   corners sorted by vertex (sorted once per topology on the host). Twin:
   :func:`opacity_reg_reference`.
+* ``downsample_area`` (:class:`DownsampleArea`) and its transpose ``downsample_area_t``
+  (:class:`DownsampleAreaT`): anti-aliasing by supersampling (method.md): the image rendered
+  with the exact s-times camera (:func:`supersampled_camera`) is area-averaged over s x s
+  blocks; the loss gradient goes back through the transpose (each sub-pixel gets its pixel's
+  gradient / s^2, in the backward's vec4 layout). Twins: :func:`downsample_area_reference`,
+  :func:`downsample_area_t_reference`.
 """
 
 from __future__ import annotations
@@ -74,6 +80,34 @@ def opacity_reg_reference(triangles, opacity, weight, num_vertices):
     return out
 
 
+def supersampled_camera(camera, s):
+    """The exact s-times camera: ``fx s, fy s, cx s, cy s, width s, height s``. With pixel
+    centres at ``(j + 0.5, i + 0.5)`` the s x s sub-pixels of pixel (i, j) have centres at
+    ``j + (b + 0.5) / s`` (b = 0..s-1), mean ``j + 0.5``: their area average is that pixel."""
+    from ..types import Camera
+    s = int(s)
+    if s < 1:
+        raise ValueError(f"supersampling factor: expected an integer >= 1, got {s}")
+    if s == 1:
+        return camera
+    return Camera(camera.width * s, camera.height * s, camera.fx * s, camera.fy * s, camera.cx * s, camera.cy * s,
+                  camera.world_to_camera)
+
+
+def downsample_area_reference(image, s):
+    """``[s H, s W, C]`` -> ``[H, W, C]``: the mean of each s x s block (float64)."""
+    img = np.asarray(image, np.float64)
+    h, w = img.shape[0] // s, img.shape[1] // s
+    return img.reshape(h, s, w, s, -1).mean(axis=(1, 3))
+
+
+def downsample_area_t_reference(v_image, s):
+    """The transpose of :func:`downsample_area_reference`: ``[H, W, C]`` -> ``[s H, s W, C]``,
+    every sub-pixel the value of its pixel / s^2 (float64)."""
+    v = np.asarray(v_image, np.float64) / (s * s)
+    return np.repeat(np.repeat(v, s, axis=0), s, axis=1)
+
+
 # ---------------------------------------------------------------------- device
 
 class TrainActivate(Stage):
@@ -103,6 +137,25 @@ class PackVOut(Stage):
     def __call__(self, enc, v_image, v_out, num_pixels, profiler=None):
         pp = self.uniform("PackParams", num_pixels=num_pixels)
         self.dispatch(enc, _groups(num_pixels), dict(pp=pp, v_image=v_image, v_out=v_out), profiler)
+
+
+class DownsampleArea(Stage):
+    """``fine [s H * s W * 3]`` -> ``coarse [H * W * 3]`` (area mean), ``width``/``height`` coarse."""
+    stage = "downsample_area"
+
+    def __call__(self, enc, fine, coarse, width, height, s, profiler=None):
+        dp = self.uniform("DownParams", width=width, height=height, factor=s, inv_area=1.0 / (s * s))
+        self.dispatch(enc, _groups(width * height), dict(dp=dp, fine=fine, coarse=coarse), profiler)
+
+
+class DownsampleAreaT(Stage):
+    """``v_coarse [H * W * 3]`` -> ``v_fine [s H * s W]`` vec4 (the backward's input, ``.w = 0``)."""
+    stage = "downsample_area_t"
+
+    def __call__(self, enc, v_coarse, v_fine, width, height, s, profiler=None):
+        dp = self.uniform("DownParams", width=width, height=height, factor=s, inv_area=1.0 / (s * s))
+        self.dispatch(enc, _groups(width * height * s * s), dict(dp=dp, v_coarse=v_coarse, v_fine=v_fine),
+                      profiler)
 
 
 class OpacityReg:
@@ -139,5 +192,6 @@ class _OpacityRegStage(Stage):
     stage = "opacity_reg"
 
 
-__all__ = ["TrainActivate", "TrainGrads", "PackVOut", "OpacityReg", "activate_reference", "grads_reference",
+__all__ = ["TrainActivate", "TrainGrads", "PackVOut", "OpacityReg", "DownsampleArea", "DownsampleAreaT",
+           "supersampled_camera", "downsample_area_reference", "downsample_area_t_reference", "activate_reference", "grads_reference",
            "pack_v_out_reference", "opacity_reg_reference", "grid"]

@@ -27,7 +27,22 @@ Not implemented yet (issue 5), stated so nobody relies on it:
   accumulation, and every topology step (500 iterations, scaled) is one host round trip that
   edits the mesh and the Adam state and re-creates the device buffers. Its events go to
   ``log.jsonl`` (``event: topology`` / ``densify_stop``).
-* TODO(issue 5): supersampled rendering (s = 2, 4 late in the run) and the normal loss.
+* Anti-aliasing (method.md): iteration ``it`` renders with the exact s-times camera
+  (:func:`~.kernels.supersampled_camera`, ``s = Schedule.supersample(it)``: 1, 2 from 20000,
+  4 from 25000, scaled with ``quick``), area-downsamples on the device (``downsample_area``),
+  takes the loss on the downsampled image and sends its gradient back through the transpose
+  (``downsample_area_t``, which writes the backward's vec4 input directly). ``s`` is halved
+  until the sub-pixel image fits the device's storage-binding limit (:meth:`Trainer.fit_supersample`).
+  Held-out evaluation renders at s = 4 (``SUPERSAMPLE_EVAL``) the same way.
+  Max-weight accumulation for topology at s > 1: the forward pass's per-triangle max blending
+  weight ``alpha T`` is then the maximum over the s x s sub-pixel samples instead of the pixel
+  centres. ``alpha T`` is a point-sampled continuous function of the image position, so this is
+  the same quantity sampled more densely (never systematically lower: a triangle's peak weight
+  is at least as well found); thresholds are not rescaled. The renderer's per-view culls in
+  pixels (inradius, projected size < 1 px) act on sub-pixels, so at s > 1 triangles smaller
+  than a pixel but larger than a sub-pixel are drawn and can gain weight; the size prune
+  (1400 px) measures at the training resolution.
+* TODO(issue 5): the normal loss.
 """
 
 from __future__ import annotations
@@ -45,10 +60,10 @@ import numpy as np
 from ..device_model import DeviceModel
 from ..types import TriangleModel
 from .init import SH_C0, init_from_points
-from .kernels import OpacityReg, PackVOut, TrainActivate, TrainGrads
+from .kernels import DownsampleArea, DownsampleAreaT, OpacityReg, PackVOut, TrainActivate, TrainGrads, supersampled_camera
 from .losses import ImageLoss, ssim_map_reference
 from .optim import Adam
-from .schedules import SIGMA_FINAL, Schedule, logit_from_opacity
+from .schedules import SIGMA_FINAL, SUPERSAMPLE_EVAL, Schedule, logit_from_opacity
 from .topology import TopologyStrategy
 
 CHECKPOINT_VERSION = 1
@@ -155,6 +170,8 @@ class Trainer:
         self.activate = TrainActivate(c)
         self.grads = TrainGrads(c)
         self.pack = PackVOut(c)
+        self.down = DownsampleArea(c)
+        self.down_t = DownsampleAreaT(c)
         self.adam = Adam(c)
         self.reg = OpacityReg(c, self.renderer.scratch)
         self._targets = {}
@@ -227,6 +244,33 @@ class Trainer:
             buf = self._targets[view] = self.ctx.upload(img, f"target_{view}")
         return buf
 
+    def fit_supersample(self, camera, s):
+        """The largest of s, s/2, ..., 1 whose sub-pixel image (and the backward's vec4 input,
+        16 bytes per sub-pixel) fits the device's storage-binding and buffer limits."""
+        lim = self.ctx.limits
+        cap = min(int(lim["max-storage-buffer-binding-size"]), int(lim["max-buffer-size"]))
+        s = max(1, int(s))
+        while s > 1 and 16 * camera.width * camera.height * s * s > cap:
+            s //= 2
+        return s
+
+    def render_supersampled(self, model, camera, sigma, s, enc=None):
+        """Forward with the s-times camera and, for s > 1, area-downsample on the device.
+        Returns ``(forward result, image buffer [H * W * 3] at the camera's resolution)``."""
+        s = self.fit_supersample(camera, s)
+        res = self.renderer.forward(model, supersampled_camera(camera, s), sigma, self.config.background,
+                                    self.config.near)
+        if s == 1:
+            return res, res.buffers["image"], 1
+        h, w = camera.height, camera.width
+        out = self.renderer.scratch.get("train_image_down", 12 * h * w)
+        own = enc is None
+        enc = self.ctx.device.create_command_encoder() if own else enc
+        self.down(enc, res.buffers["image"], out, w, h, s)
+        if own:
+            self.ctx.queue.submit([enc.finish()])
+        return res, out, s
+
     def view_of(self, it):
         """Training view (index into the scene) of 1-based iteration ``it``."""
         v = len(self.train_views)
@@ -247,14 +291,17 @@ class Trainer:
         view = self.view_of(it)
         cam = self.scene.cameras[view]
         h, w = cam.height, cam.width
-        res = self.renderer.forward(self.model, cam, s.sigma(it), self.config.background, self.config.near)
+        enc = c.device.create_command_encoder()
+        res, image, ss = self.render_supersampled(self.model, cam, s.sigma(it), s.supersample(it), enc)
         scr = self.renderer.scratch
         v_img = scr.get("train_v_image", 12 * h * w)
-        v_out = scr.get("train_v_out", 16 * h * w)
+        v_out = scr.get("train_v_out", 16 * h * w * ss * ss)
         loss_buf = scr.get("train_loss", 16)
-        enc = c.device.create_command_encoder()
-        self.loss_image.record(enc, res.buffers["image"], self._target(view), v_img, loss_buf, w, h)
-        self.pack(enc, v_img, v_out, h * w)
+        self.loss_image.record(enc, image, self._target(view), v_img, loss_buf, w, h)
+        if ss == 1:
+            self.pack(enc, v_img, v_out, h * w)
+        else:
+            self.down_t(enc, v_img, v_out, w, h, ss)
         c.queue.submit([enc.finish()])
         self.renderer.backward(res, v_out, read=False, out=self.gbuf)
         enc = c.device.create_command_encoder()
@@ -280,8 +327,9 @@ class Trainer:
         stats = None
         if read_stats:
             loss = c.read(loss_buf, np.float32, 4)
+            img = c.read(image, np.float32, 3 * h * w).reshape(h, w, 3)
             stats = dict(loss=float(loss[0]), l1=float(loss[1]), ssim=float(loss[2]),
-                         psnr=psnr(res.image, self.scene.images[view]), view=int(view))
+                         psnr=psnr(img, self.scene.images[view]), view=int(view), supersample=int(ss))
         if edit:
             self.topology.edit(self, it)
         return stats
@@ -330,6 +378,7 @@ class Trainer:
                     rec = dict(iteration=self.iteration, loss=stats["loss"], l1=stats["l1"], ssim=stats["ssim"],
                                psnr=stats["psnr"], vertices=self.n, triangles=self.m,
                                sigma=self.sched.sigma(self.iteration), floor=self.sched.opacity_floor(self.iteration),
+                               supersample=stats["supersample"],
                                sh_degree=self.sched.sh_degree(self.iteration), iterations_per_s=ips,
                                elapsed=self.elapsed)
                     if out is not None:
@@ -431,9 +480,16 @@ class Trainer:
         """The model as trained (activated opacity, full SH), read back."""
         return self.model.to_model()
 
-    def render(self, model, camera, sigma=None):
+    def render(self, model, camera, sigma=None, supersample=1):
+        """``model`` seen by ``camera`` at ``sigma`` (default: the current one), rendered at
+        ``supersample`` x resolution (reduced to fit the device) and area-downsampled on the
+        device. Returns ``[H, W, 3]`` float32."""
         sigma = self.sched.sigma(self.iteration) if sigma is None else sigma
-        return self.renderer.forward(model, camera, sigma, self.config.background, self.config.near).image
+        res, image, s = self.render_supersampled(model, camera, sigma, supersample)
+        if s == 1:
+            return res.image
+        return self.ctx.read(image, np.float32, 3 * camera.height * camera.width).reshape(camera.height,
+                                                                                          camera.width, 3)
 
     def final_mesh(self):
         """method.md's end of training: render every training view with the trained model,
@@ -441,10 +497,12 @@ class Trainer:
         then drop sigma and opacity. Returns ``(positions [V, 3], triangles [F, 3],
         colors [V, 3] in [0, 1] from SH DC)``."""
         sigma = self.sched.sigma(self.iteration)
+        ss = self.sched.supersample(self.iteration)     # as the last training steps rendered
         mw = np.zeros(self.m, np.float32)
         for v in self.train_views:
-            res = self.renderer.forward(self.model, self.scene.cameras[v], sigma, self.config.background,
-                                        self.config.near)
+            cam = self.scene.cameras[v]
+            res = self.renderer.forward(self.model, supersampled_camera(cam, self.fit_supersample(cam, ss)), sigma,
+                                        self.config.background, self.config.near)
             mw = np.maximum(mw, res.max_weight)
         model = self.current_model()
         keep = mw > FINAL_PRUNE_WEIGHT
@@ -461,14 +519,16 @@ class Trainer:
         sh = ((np.asarray(colors, np.float64) - 0.5) / SH_C0)[:, None, :]
         return TriangleModel(positions, triangles, sh, np.ones(len(positions)))
 
-    def evaluate(self, model=None, sigma=None, views=None):
+    def evaluate(self, model=None, sigma=None, views=None, supersample=SUPERSAMPLE_EVAL):
         """Mean PSNR / SSIM over ``views`` (default: the held-out ones, else the training ones)
-        of ``model`` (default: the trained model at the current sigma). Returns (psnr, ssim, images)."""
+        of ``model`` (default: the trained model at the current sigma), rendered at
+        ``supersample`` x resolution (method.md's evaluation: 4; less where the image would not
+        fit the device) and area-downsampled. Returns (psnr, ssim, images)."""
         views = list(self.scene.test_indices or self.train_views) if views is None else list(views)
         model = self.model if model is None else model
         ps, ss, imgs = [], [], []
         for v in views:
-            img = self.render(model, self.scene.cameras[v], sigma)
+            img = self.render(model, self.scene.cameras[v], sigma, supersample)
             ps.append(psnr(img, self.scene.images[v]))
             ss.append(ssim(img, self.scene.images[v]))
             imgs.append(img)
