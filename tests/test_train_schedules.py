@@ -136,3 +136,22 @@ def test_bad_inputs():
         FULL.sigma(-1)
     with pytest.raises(ValueError):
         FULL.sigma(1.5)
+
+
+def test_quick_topology_interval_and_opacity_lr():
+    # 300 quick iterations, 7 training views, at least 3 epochs between topology events
+    q = Schedule(total=300, quick=True, views=7, topology_epochs=3, opacity_lr_scale=10)
+    assert q.topology_every() == 21
+    prunes = [i for i in range(301) if q.is_prune_step(i)]
+    assert prunes[0] == 40 + 21 and all(b - a == 21 for a, b in zip(prunes, prunes[1:]))
+    dens = [i for i in range(301) if q.is_densify_step(i)]
+    assert dens == list(range(5 + 21, 130, 21))
+    assert [i for i in range(301) if q.is_hard_prune_step(i)] == [61]     # the first prune at or after 50
+    assert q.prune_threshold(61) == pytest.approx(0.235) and q.prune_threshold(82) == pytest.approx(0.245)
+    assert q.opacity_lr() == pytest.approx(0.3)
+    # the paper preset (not quick) ignores both knobs
+    p = Schedule(views=7, topology_epochs=3, opacity_lr_scale=10)
+    for i in range(0, 30001, 250):
+        assert p.state(i) == FULL.state(i)
+    # a short interval stays the scaled 500 when an epoch is shorter
+    assert Schedule(total=3000, quick=True, views=7, topology_epochs=3).topology_every() == 50

@@ -5,6 +5,10 @@ import numpy as np
 import pytest
 
 from tsplus_wgpu.train.schedules import Schedule
+
+#: these tests exercise the edits at the method's scaled 500-iteration interval (prune at 45, densify
+#: at 10, ...), not the quick preset's longer defaults
+SCALED_500 = dict(quick_topology_epochs=0, quick_opacity_lr_scale=1)
 from tsplus_wgpu.train.topology import (choose_split, max_weight_accumulate_reference, new_vertex_count,
                                         remove_unused_vertices, subdivide, triangle_areas)
 
@@ -92,7 +96,8 @@ def tiny():
 
 def test_trainer_topology_edits_keep_mesh_valid_and_adam_rows(renderer, tiny):
     from tsplus_wgpu.train.trainer import TrainConfig, Trainer
-    t = Trainer(tiny, TrainConfig(iterations=300, quick=True, seed=1, max_vertices=1600), renderer=renderer)
+    t = Trainer(tiny, TrainConfig(iterations=300, quick=True, seed=1, max_vertices=1600, **SCALED_500),
+                renderer=renderer)
     for _ in range(9):
         t.step()
     before = t.state_arrays()
@@ -129,7 +134,8 @@ def test_trainer_topology_edits_keep_mesh_valid_and_adam_rows(renderer, tiny):
 
 def test_prune_moves_adam_rows_with_their_vertices(renderer, tiny):
     from tsplus_wgpu.train.trainer import TrainConfig, Trainer
-    t = Trainer(tiny, TrainConfig(iterations=300, quick=True, seed=2, max_vertices=1300), renderer=renderer)
+    t = Trainer(tiny, TrainConfig(iterations=300, quick=True, seed=2, max_vertices=1300, **SCALED_500),
+                renderer=renderer)
     while t.iteration < 44:
         t.step()
     t.topology.seen = set(t.train_views)            # let the weight criterion apply

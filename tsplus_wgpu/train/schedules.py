@@ -94,6 +94,9 @@ class Schedule:
     total: int = FULL_RUN
     indoor: bool = False
     quick: bool = False
+    views: int = 1
+    topology_epochs: float = 0.0
+    opacity_lr_scale: float = 1.0
 
     def __post_init__(self):
         if isinstance(self.total, bool) or int(self.total) != self.total or self.total < 1:
@@ -109,6 +112,14 @@ class Schedule:
     def every(self, interval_at_30k):
         """An interval of the 30k run in this run's units (>= 1)."""
         return max(1, self.at(interval_at_30k))
+
+    def topology_every(self):
+        """The interval between topology events (prune, densify): 500 scaled, and in a quick
+        run at least ``topology_epochs`` epochs of ``views`` training views."""
+        base = self.every(PRUNE_EVERY)
+        if self.quick and self.topology_epochs > 0:
+            base = max(base, int(math.ceil(self.topology_epochs * max(1, int(self.views)))))
+        return base
 
     def _pick(self, pair):
         return pair[1] if self.indoor else pair[0]
@@ -132,7 +143,7 @@ class Schedule:
         return self._pick(SH_DC_LR) / SH_REST_DIVISOR
 
     def opacity_lr(self, it=0):
-        return self._pick(OPACITY_LR)
+        return self._pick(OPACITY_LR) * (self.opacity_lr_scale if self.quick else 1.0)
 
     def learning_rates(self, it, position_scale=1.0):
         return {"positions": self.position_lr(it, position_scale), "sh_dc": self.sh_dc_lr(it),
@@ -171,17 +182,22 @@ class Schedule:
     def is_prune_step(self, it):
         """Every 500 iterations after 4000 [3000] (4500, 5000, ...)."""
         it = _check_it(it)
-        after, every = self.at(self._pick(PRUNE_AFTER)), self.every(PRUNE_EVERY)
+        after, every = self.at(self._pick(PRUNE_AFTER)), self.topology_every()
         return it > after and (it - after) % every == 0
 
     def is_hard_prune_step(self, it):
-        """The hard prune of the paper (iteration 5000)."""
-        return _check_it(it) == self.at(HARD_PRUNE_AT)
+        """The hard prune of the paper (iteration 5000; in a quick run with a longer topology
+        interval, the first prune step at or after it)."""
+        it = _check_it(it)
+        at = self.at(HARD_PRUNE_AT)
+        if self.topology_every() == self.every(PRUNE_EVERY):
+            return it == at
+        return it >= at and self.is_prune_step(it) and not any(self.is_prune_step(j) for j in range(at, it))
 
     def prune_threshold(self, it):
         """0.235, plus 0.01 for every 500 iterations completed after 5000."""
         it = _check_it(it)
-        start, every = self.at(HARD_PRUNE_AT), self.every(PRUNE_EVERY)
+        start, every = self.at(HARD_PRUNE_AT), self.topology_every()
         steps = max(0, (it - start) // every) if it >= start else 0
         return PRUNE_THRESHOLD + PRUNE_THRESHOLD_STEP * steps
 
@@ -194,7 +210,7 @@ class Schedule:
         """Every 500 iterations strictly inside (500, 13000) [(1000, 25000)]."""
         it = _check_it(it)
         lo, hi = (self.at(x) for x in self._pick(DENSIFY_WINDOW))
-        every = self.every(DENSIFY_EVERY)
+        every = self.topology_every()
         return lo < it < hi and (it - lo) % every == 0
 
     def densify_count(self, num_vertices, cap=DENSIFY_CAP):

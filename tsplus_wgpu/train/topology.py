@@ -201,7 +201,7 @@ class TopologyStrategy:
         self.stop_windows = int(stop_windows)
         self.enabled = bool(enabled)
         self.near = float(near)
-        self.ring_size = max(1, schedule.every(500))
+        self.ring_size = max(1, schedule.topology_every())
         self.seen = set()              # training views rendered since the last weight reset
         self.l1_windows = []           # mean training L1 per topology window
         self.last_read = 0             # iteration of the last ring read
