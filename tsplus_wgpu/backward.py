@@ -260,9 +260,9 @@ class BackwardPass:
                    tri_stats=c.buffer(4 * NSTAT * m, "tri_stats"), vertex_sums=c.buffer(32 * n, "vertex_sums"),
                    corner_grads=c.buffer(32 * 3 * m, "corner_grads"), state=c.buffer(16 * h * w, "backward_state"),
                    work=c.buffer(16, "backward_work"))
-        # the longest tile list sizes the passes of rasterize_backward (a small readback)
-        rg = c.read(b["ranges"], np.uint32, 2 * tx * ty).reshape(-1, 2).astype(np.int64)
-        max_range = int((rg[:, 1] - rg[:, 0]).max(initial=0))
+        # the longest tile list sizes the passes of rasterize_backward; the forward already
+        # read it back, so no second readback here
+        max_range = int(result.max_tile_pairs)
         if host_timing:
             c.wait()
         submit.t = time.perf_counter()

@@ -25,7 +25,7 @@ class ForwardResult:
     the numpy views below are read back lazily, once each."""
 
     def __init__(self, renderer, camera, model, sigma, background, near, buffers, num_pairs, timings,
-                 model_buffers=None):
+                 model_buffers=None, max_tile_pairs=0):
         self.renderer = renderer
         self.camera = camera
         self.model = model
@@ -38,6 +38,8 @@ class ForwardResult:
         self._cache = {}
         #: the model's device buffers the forward read (the backward reuses them, no re-upload)
         self.model_buffers = model_buffers
+        #: the longest tile list (sizes the blend's passes, forward and backward)
+        self.max_tile_pairs = max_tile_pairs
 
     def _read(self, name, dtype, count):
         key = (name, np.dtype(dtype).str)
@@ -293,7 +295,8 @@ class Renderer:
         flush("rasterize_forward", force=True)
         if prof is not None:
             times = prof.resolve()
-        return ForwardResult(self, camera, model, sigma, tuple(bg), near, b, num_pairs, times, model_buffers=dev)
+        return ForwardResult(self, camera, model, sigma, tuple(bg), near, b, num_pairs, times, model_buffers=dev,
+                             max_tile_pairs=max_tile_pairs)
 
     def backward(self, result, v_image, v_transmittance=None, read=True, out=None):
         """Gradients of ``sum(v_image * image) + sum(v_transmittance * T)`` of ``result``
