@@ -403,8 +403,8 @@ class Trainer:
                             for ev in self.topology.events:
                                 f.write(json.dumps(ev) + "\n")
                     self.topology.events = []
-                    if bar is not None:
-                        bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}", tris=self.m)
+                if bar is not None and stats is not None:
+                    bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}", tris=self.m)
                 if out is not None and cfg.checkpoint_every and self.iteration % cfg.checkpoint_every == 0:
                     self.save_checkpoint(out / "checkpoint.npz")
         finally:
