@@ -306,3 +306,4 @@ def projection_from_records(records, rects):
                       opacity=f("opacity"), tau=f("tau"), depth=f("depth"), vcolors=None, rect=rects,
                       color=f("color")[:, :3], dcolor_dx=f("dcolor_dx")[:, :3], dcolor_dy=f("dcolor_dy")[:, :3])
 from .reference_backward import backward  # noqa: E402,F401  (float64 analytic backward)
+from .reference_ids import triangle_ids  # noqa: E402,F401  (float64 twin of the triangle-ID pass)

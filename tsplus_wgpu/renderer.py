@@ -11,7 +11,7 @@ import numpy as np
 from . import reference
 from .gpu import GpuContext, Profiler
 from .stages import (BinCount, BinEmit, BinItems, BinRows, MaxReduce, PrefixSum, ProjectTriangles, RadixSort,
-                     RasterizeForward, Scratch, ShToColor, TileRanges)
+                     RasterizeForward, RasterizeIds, Scratch, ShToColor, TileRanges)
 from .device_model import DeviceModel
 from .types import Camera, TriangleModel
 
@@ -60,6 +60,23 @@ class ForwardResult:
     @property
     def max_weight(self):  # [M] float32
         return self._read("max_weight", np.uint32, self.model.num_triangles).view(np.float32)
+
+    @property
+    def triangle_ids(self):  # [H, W] int32
+        """Per pixel the index of the triangle with the largest blending weight alpha * T (ties:
+        the front-most), -1 where no triangle contributes. Needs ``forward(..., triangle_ids=True)``."""
+        if "triangle_ids" not in self.buffers:
+            raise ValueError("triangle_ids: not computed; call Renderer.forward(..., triangle_ids=True)")
+        h, w = self.camera.height, self.camera.width
+        return self._read("triangle_ids", np.int32, h * w).reshape(h, w)
+
+    @property
+    def triangle_id_weights(self):  # [H, W] float32
+        """The blending weight alpha * T of ``triangle_ids`` at each pixel (0 where none)."""
+        if "id_state" not in self.buffers:
+            raise ValueError("triangle_id_weights: not computed; call Renderer.forward(..., triangle_ids=True)")
+        h, w = self.camera.height, self.camera.width
+        return self._read("id_state", np.uint32, 4 * h * w).reshape(h, w, 4)[..., 1].view(np.float32)
 
     @property
     def n_contrib(self):  # [H, W] pairs up to the last contributing one
@@ -130,6 +147,7 @@ class Renderer:
         self.tile_sort = RadixSort(c, self.scratch, "tile_sort")
         self.tile_ranges = TileRanges(c)
         self.blend = RasterizeForward(c)
+        self._ids = None           # RasterizeIds, compiled on first use (forward(triangle_ids=True))
         self.tri2d_dtype = self.project.src.structs["Tri2D"]
         assert self.tri2d_dtype.itemsize == 4 * TRI2D_FLOATS
 
@@ -165,7 +183,8 @@ class Renderer:
             opacity=c.upload(model.opacity.astype(np.float32), "opacity"),
         )
 
-    def forward(self, model, camera, sigma, background=(0.0, 0.0, 0.0), near=0.01, profile=False):
+    def forward(self, model, camera, sigma, background=(0.0, 0.0, 0.0), near=0.01, profile=False,
+                triangle_ids=False):
         """Render ``model`` seen by ``camera``.
 
         Args:
@@ -176,10 +195,13 @@ class Renderer:
             background: RGB added where light passes through (weight T).
             near: triangles with a vertex at camera z <= near are not drawn.
             profile: time each stage (timestamp queries where supported, else host timing).
+            triangle_ids: also run the ID pass (``shaders/rasterize_ids.wgsl``) over the same
+                sorted tile lists; off by default, so the normal forward pays nothing for it.
 
         Returns:
             :class:`ForwardResult` with ``image [H, W, 3]``, ``transmittance [H, W]``,
-            ``max_weight [M]`` (read back on first access).
+            ``max_weight [M]`` and, with ``triangle_ids``, ``triangle_ids [H, W]`` int32
+            (read back on first access).
         """
         if isinstance(model, DeviceModel):
             if model.ctx is not self.ctx:
@@ -292,11 +314,33 @@ class Renderer:
         flush("tile_ranges")
         self.blend(state["enc"], params, b["ranges"], b["pair_tris"], b["tris"], b["image"], b["final_t"],
                    b["n_contrib"], b["max_weight"], b["work"], tx, ty, max_tile_pairs, prof)
-        flush("rasterize_forward", force=True)
+        flush("rasterize_forward", force=not triangle_ids)
+        if triangle_ids:
+            if self._ids is None:
+                self._ids = RasterizeIds(c)
+            b["id_state"] = c.buffer(16 * h * w, "id_state")
+            b["triangle_ids"] = c.buffer(4 * h * w, "triangle_ids")
+            self._ids(state["enc"], params, b["ranges"], b["pair_tris"], b["tris"], b["id_state"],
+                      b["triangle_ids"], tx, ty, max_tile_pairs, prof)
+            flush("rasterize_ids", force=True)
         if prof is not None:
             times = prof.resolve()
         return ForwardResult(self, camera, model, sigma, tuple(bg), near, b, num_pairs, times, model_buffers=dev,
                              max_tile_pairs=max_tile_pairs)
+
+    def triangle_ids(self, model, camera, sigma=1e-4, near=0.01, opaque=True):
+        """The triangle-ID buffer ``[H, W]`` int32 of ``model`` seen by ``camera``: per pixel the
+        triangle with the largest blending weight alpha * T (ties: the front-most), -1 where none.
+
+        Args:
+            model: :class:`TriangleModel` (or a :class:`~tsplus_wgpu.DeviceModel` with ``opaque=False``).
+            sigma: window sharpness; the default 1e-4 draws nearly hard triangles.
+            opaque: draw every vertex at opacity 1 and with DC colour only, as the exported
+                mesh is (colours do not change the IDs; opacity does).
+        """
+        if opaque and isinstance(model, TriangleModel):
+            model = TriangleModel(model.positions, model.triangles, model.sh[:, :1], np.ones(model.num_vertices))
+        return self.forward(model, camera, sigma, near=near, triangle_ids=True).triangle_ids
 
     def backward(self, result, v_image, v_transmittance=None, read=True, out=None):
         """Gradients of ``sum(v_image * image) + sum(v_transmittance * T)`` of ``result``

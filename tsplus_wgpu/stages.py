@@ -118,6 +118,22 @@ class RasterizeForward(Stage):
                                work=work), profiler)
 
 
+class RasterizeIds(Stage):
+    stage = "rasterize_ids"
+
+    def __call__(self, enc, params, ranges, pair_tris, tris, id_state, triangle_ids, tiles_x, tiles_y,
+                 max_tile_pairs, profiler=None):
+        """Per pixel the triangle of largest alpha * T (0xFFFFFFFF: none), over the same sorted
+        tile lists as :class:`RasterizeForward`, in as many passes."""
+        passes = max(1, -(-int(max_tile_pairs) // BLEND_PASS_PAIRS))
+        for i in range(passes):
+            bp = self.uniform("BlendPass", begin=i * BLEND_PASS_PAIRS, end=(i + 1) * BLEND_PASS_PAIRS,
+                              first=int(i == 0), last=int(i == passes - 1))
+            self.dispatch(enc, (tiles_x, tiles_y, 1),
+                          dict(params=params, ranges=ranges, pair_tris=pair_tris, tris=tris, id_state=id_state,
+                               triangle_ids=triangle_ids, pass_=bp), profiler)
+
+
 class ScanBlock(Stage):
     stage = "scan_block"
 
@@ -237,5 +253,5 @@ def scan_numpy(ctx: GpuContext, values):
     return ctx.read(buf, np.uint32, n), int(ctx.read(total, np.uint32, 1)[0])
 
 
-__all__ = ["ShToColor", "ProjectTriangles", "BinRows", "BinItems", "BinCount", "BinEmit", "MaxReduce", "BLEND_PASS_PAIRS", "TileRanges", "RasterizeForward",
+__all__ = ["ShToColor", "ProjectTriangles", "BinRows", "BinItems", "BinCount", "BinEmit", "MaxReduce", "BLEND_PASS_PAIRS", "TileRanges", "RasterizeForward", "RasterizeIds",
            "PrefixSum", "RadixSort", "Scratch", "PeakFma", "scan_numpy", "wgpu"]

@@ -1,0 +1,124 @@
+"""The triangle-ID pass (shaders/rasterize_ids.wgsl) against its float64 twin
+(tsplus_wgpu/reference_ids.py): integer IDs exactly, except pixels where the twin's two
+largest weights are within float32 reach of each other or a discrete decision is within
+rounding of flipping (the twin's ``ambiguous``)."""
+
+import numpy as np
+import pytest
+from scenes import f32_exact, look_at_camera, random_scene
+
+from tsplus_wgpu import TriangleModel, reference
+
+
+def _compare(res, ref, max_excluded=0.02):
+    ids = res.triangle_ids
+    assert ids.dtype == np.int32 and ids.shape == ref.ids.shape
+    drawn = ref.weight > 0
+    close = drawn & (ref.weight - ref.second <= 1e-4 * ref.weight + 1e-7)
+    ok = ~ref.ambiguous & ~close
+    bad = np.argwhere(ok & (ids != ref.ids))
+    assert len(bad) == 0, f"{len(bad)} pixels differ, first {bad[:5].tolist()}: got {ids[tuple(bad[0])]}, " \
+                          f"twin {ref.ids[tuple(bad[0])]}"
+    # what is left out is a thin band of edge pixels, not the image
+    assert (~ok & drawn).sum() <= max(2, max_excluded * drawn.sum())
+    # -1 exactly where nothing contributed (T stays 1)
+    np.testing.assert_array_equal(ids < 0, res.transmittance == 1.0)
+    w = res.triangle_id_weights
+    np.testing.assert_allclose(w[ok], ref.weight[ok], rtol=2e-3, atol=1e-6)
+    return ok
+
+
+@pytest.mark.parametrize("size", [(1, 1), (17, 33), (256, 192)])
+@pytest.mark.parametrize("sigma", [1.0, 0.1, 1e-4])
+def test_ids_match_twin(renderer, size, sigma):
+    w, h = size
+    model, cam = f32_exact(*random_scene(7 + w, w, h, sheets=4, points_per_sheet=10, sh_k=4))
+    res = renderer.forward(model, cam, sigma, triangle_ids=True)
+    ref = reference.triangle_ids(model, cam, sigma)
+    _compare(res, ref, max_excluded=0.05 if w > 1 else 1.0)
+    if w > 100:
+        assert len(np.unique(ref.ids)) > 20      # many triangles win somewhere
+
+
+def test_ids_not_computed_unless_asked(renderer):
+    from tsplus_wgpu import Renderer
+    r = Renderer(renderer.ctx)
+    model, cam = f32_exact(*random_scene(3, 32, 24))
+    res = r.forward(model, cam, 0.5)
+    assert r._ids is None                    # the ID pipeline is not even compiled
+    assert "triangle_ids" not in res.buffers
+    with pytest.raises(ValueError, match="triangle_ids=True"):
+        res.triangle_ids
+    # asking for IDs leaves the image as it was
+    res2 = r.forward(model, cam, 0.5, triangle_ids=True)
+    np.testing.assert_array_equal(res2.image, res.image)
+
+
+def _quad_pair(opacities, dz=(0.0, 0.0)):
+    """Two copies of one screen-covering triangle at depths dz."""
+    tri = np.array([[-6, 4, 0], [6, 4, 0], [0, -8, 0]], float)
+    pos = np.concatenate([tri + [0, 0, dz[0]], tri + [0, 0, dz[1]]])
+    op = np.repeat(np.asarray(opacities, float), 3)
+    return TriangleModel(pos, np.arange(6).reshape(2, 3), np.zeros((6, 1, 3)), op)
+
+
+def test_largest_weight_wins_not_the_front(renderer):
+    cam = look_at_camera(20, 20)
+    # front 0.3 (weight 0.3) vs behind 0.9 (weight 0.7 * 0.9 = 0.63): the one behind wins
+    ids = renderer.forward(_quad_pair([0.3, 0.9], dz=(0.0, 0.5)), cam, 1e-4, triangle_ids=True).triangle_ids
+    assert np.all(ids == 1)
+    ids = renderer.forward(_quad_pair([0.6, 0.9], dz=(0.0, 0.5)), cam, 1e-4, triangle_ids=True).triangle_ids
+    assert np.all(ids == 0)                  # 0.6 > 0.4 * 0.9
+
+
+def test_near_ties_are_deterministic(renderer):
+    """Exact float32 ties cannot be built through the window (alpha = o I(p)); the rule (the
+    weight must grow strictly, so the front-most of equal weights stays) is exercised by
+    near-ties: the same answer on every run, and the twin's on every pixel it can decide."""
+    cam = look_at_camera(20, 20)
+    model = _quad_pair([0.25, 1.0 / 3.0], dz=(0.0, 0.0))
+    f32 = TriangleModel(model.positions, model.triangles, model.sh,
+                        model.opacity.astype(np.float32).astype(np.float64))
+    runs = [renderer.forward(f32, cam, 1e-4, triangle_ids=True).triangle_ids for _ in range(3)]
+    assert all(np.array_equal(runs[0], r) for r in runs[1:])
+    ref = reference.triangle_ids(f32, cam, 1e-4)
+    assert np.all(np.abs(ref.weight - ref.second) < 1e-4)   # weights 0.25 I and (1 - 0.25 I) I / 3
+
+
+def test_renderer_triangle_ids_draws_opaque(renderer):
+    model, cam = f32_exact(*random_scene(5, 48, 40, opacity=(0.1, 0.3)))
+    got = renderer.triangle_ids(model, cam)
+    opaque = TriangleModel(model.positions, model.triangles, model.sh[:, :1], np.ones(model.num_vertices))
+    ref = reference.triangle_ids(opaque, cam, 1e-4)
+    ok = ~ref.ambiguous & ((ref.weight == 0) | (ref.weight - ref.second > 1e-4))
+    np.testing.assert_array_equal(got[ok], ref.ids[ok])
+    # opaque: the winner is the first triangle drawn at the pixel (weight 0.99)
+    assert np.allclose(ref.weight[ref.weight > 0], 0.99)
+
+
+def _layers(tri, k, dz, opacity):
+    pos = np.concatenate([tri + [0, 0, dz * i] for i in range(k)])
+    return pos, np.arange(3 * k).reshape(k, 3), np.full(3 * k, opacity)
+
+
+def test_ids_across_several_passes(renderer):
+    """A tile with more pairs than one pass (32768): the state carries between dispatches.
+    40,000 faint triangles on pixel (3, 3) first, then 50 tile-covering ones behind them,
+    reached by every other pixel in the second pass."""
+    cam = look_at_camera(16, 16)
+    s = 4 / cam.fx
+    c = (np.array([3.5, 3.5]) - 8) * s
+    tiny = np.array([[c[0] - 1.5 * s, c[1] + 1.5 * s, 0], [c[0] + 1.5 * s, c[1] + 1.5 * s, 0],
+                     [c[0], c[1] - 1.5 * s, 0]])
+    big = np.array([[-6, 4, 0], [6, 4, 0], [0, -8, 0]], float)
+    p1, t1, o1 = _layers(tiny, 40_000, 1e-5, 0.004)
+    p2, t2, o2 = _layers(big + [0, 0, 1.0], 50, 1e-3, 0.1)
+    model = TriangleModel(np.concatenate([p1, p2]), np.concatenate([t1, t2 + len(p1)]),
+                          np.zeros((len(p1) + len(p2), 1, 3)), np.concatenate([o1, o2]))
+    res = renderer.forward(model, cam, 1e-4, triangle_ids=True)
+    assert res.max_tile_pairs > 32768
+    ids = res.triangle_ids
+    assert ids[3, 3] == 0                    # the front-most faint one (weights only shrink behind it)
+    others = np.ones((16, 16), bool)
+    others[2:5, 2:5] = False
+    assert np.all(ids[others] == 40_000)     # the front-most big one: weight 0.1, the rest less
