@@ -121,4 +121,7 @@ def test_ids_across_several_passes(renderer):
     assert ids[3, 3] == 0                    # the front-most faint one (weights only shrink behind it)
     others = np.ones((16, 16), bool)
     others[2:5, 2:5] = False
-    assert np.all(ids[others] == 40_000)     # the front-most big one: weight 0.1, the rest less
+    covered = others & (res.transmittance < 1.0)
+    assert covered.sum() > 200
+    assert np.all(ids[covered] == 40_000)    # the front-most big one: weight 0.1, the rest less
+    assert np.all(ids[others & ~covered] == -1)
