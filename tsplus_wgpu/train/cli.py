@@ -52,6 +52,14 @@ def add_train_parser(sub):
                         "quick_opacity_lr_scale), which stops the early prune from wrecking the mesh (tiny, 300 "
                         "iterations: held-out mesh PSNR 21.28 dB with topology vs 10.13 dB before), but topology "
                         "still does not beat off reliably in short runs (tiny, 600: 20.91 on vs 21.92 dB off)")
+    from .ablations import ABLATIONS
+    p.add_argument("--ablation", choices=list(ABLATIONS), default=None,
+                   help="one of the paper's ablations (Tables 2-3): " + "; ".join(
+                       f"{k} = {v[1]}" + (f" ({', '.join(f'{a}={b}' for a, b in v[2].items())})" if v[2] else "")
+                       for k, v in ABLATIONS.items())
+                   + ". Sets those config keys (hard_prune, weight_prune, sigma_decay, sigma_final, opacity), which "
+                     "a --config file may also set; the ablation wins over the file. The pruning rows need "
+                     "--topology on (off by default for --preset quick)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
     from ..viewer_cli import add_train_view_args
@@ -157,7 +165,11 @@ def run_train(args):
                       ("topology", None if args.topology is None else args.topology == "on")):
         if flag is not None:
             settings[key] = flag
+    if getattr(args, "ablation", None):
+        from .ablations import ablation_overrides
+        settings.update(ablation_overrides(args.ablation))
     settings["extra"] = {**settings.get("extra", {}), "scene": str(args.scene), "downscale": args.downscale,
+                         **({"ablation": args.ablation} if getattr(args, "ablation", None) else {}),
                          **({"config_file": str(args.config)} if args.config else {})}
     cfg = TrainConfig(**settings)
     renderer = Renderer(args.adapter)

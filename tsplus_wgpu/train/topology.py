@@ -8,7 +8,8 @@ buffer (for the densification stop).
 
 At a topology step (every 500 iterations, scaled with ``quick``; one host round trip):
 
-1. **Prune** (``Schedule.is_prune_step``: every 500 after 4000 [3000]): delete triangles whose
+1. **Prune** (``Schedule.is_prune_step``: every 500 after 4000 [3000]; the criteria of
+   ``Schedule.prune_criteria``, all three unless an ablation switches one off): delete triangles whose
    min vertex opacity <= thr, whose max blending weight over the training views <= thr, or
    whose projected size (max vertex-to-centroid distance, px, max over the training views in
    front of the near plane) > 1400 [1300]; thr = ``Schedule.prune_threshold``. The **hard
@@ -296,11 +297,16 @@ class TopologyStrategy:
         reset = False
         if s.is_prune_step(it):
             thr = s.prune_threshold(it)
-            opacity = opacity_from_logit(v["logits"], floor)
-            drop = opacity[tris].min(axis=1) <= thr                     # the hard prune's criterion
-            rec["pruned_opacity"] = int(drop.sum())
+            criteria = s.prune_criteria()           # the ablations switch the first two off
+            drop = np.zeros(len(tris), bool)
+            if "opacity" in criteria:
+                opacity = opacity_from_logit(v["logits"], floor)
+                drop = opacity[tris].min(axis=1) <= thr                 # the hard prune's criterion
+                rec["pruned_opacity"] = int(drop.sum())
             all_seen = set(trainer.train_views) <= self.seen
-            if all_seen:
+            if "weight" not in criteria:
+                rec["weight_prune_skipped"] = "weight_prune off"
+            elif all_seen:
                 low = mw <= thr
                 rec["pruned_weight"] = int((low & ~drop).sum())
                 drop |= low

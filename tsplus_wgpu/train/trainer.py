@@ -98,6 +98,12 @@ class TrainConfig:
             (a 300-iteration run has 1/100 of the paper's steps; at 0.03 a logit moves at most
             1.2 before the first scaled prune, so opacities stay near the initial 0.28 and the
             prune deletes most of the mesh). Neither applies to the paper preset.
+        hard_prune, weight_prune, sigma_decay, sigma_final, opacity: the paper's ablations
+            (Tables 2-3; :class:`~.schedules.Schedule` documents each, ``ablations.ABLATIONS``
+            names the rows): ``hard_prune=False`` drops the opacity criterion of pruning,
+            ``weight_prune=False`` the blending-weight one, ``sigma_decay=False`` trains at
+            ``sigma_final`` throughout, ``sigma_final`` 0.0001 (hard) or 0.1 (soft),
+            ``opacity`` ``"opaque"`` (the floor ramps to 0.9999) or ``"free"`` (no floor).
     """
 
     iterations: int = 30000
@@ -116,17 +122,24 @@ class TrainConfig:
     densify_stop_windows: int = 3
     quick_topology_epochs: float = 3.0
     quick_opacity_lr_scale: float = 10.0
+    hard_prune: bool = True
+    weight_prune: bool = True
+    sigma_decay: bool = True
+    sigma_final: float = SIGMA_FINAL
+    opacity: str = "opaque"
     extra: dict = field(default_factory=dict)
 
     def schedule(self, views=1):
         return Schedule(total=int(self.iterations), indoor=bool(self.indoor), quick=bool(self.quick),
                         views=int(views), topology_epochs=float(self.quick_topology_epochs),
-                        opacity_lr_scale=float(self.quick_opacity_lr_scale))
+                        opacity_lr_scale=float(self.quick_opacity_lr_scale), hard_prune=bool(self.hard_prune),
+                        weight_prune=bool(self.weight_prune), sigma_decay=bool(self.sigma_decay),
+                        sigma_final=float(self.sigma_final), opacity_mode=str(self.opacity))
 
     #: fields that must match for ``--resume`` (the others may change between sessions)
     RESUME_KEYS = ("iterations", "quick", "indoor", "seed", "sh_degree", "background", "near", "opacity_reg",
                    "topology", "max_vertices", "densify_stop_rel", "densify_stop_windows", "quick_topology_epochs",
-                   "quick_opacity_lr_scale")
+                   "quick_opacity_lr_scale", "hard_prune", "weight_prune", "sigma_decay", "sigma_final", "opacity")
 
 
 def psnr(a, b):
