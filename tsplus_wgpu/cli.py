@@ -21,6 +21,7 @@ examples:
   tsplus export runs/small --format glb --y-up   engine-ready mesh (ply|glb|obj)
   tsplus eval runs/small procedural:small        held-out PSNR/SSIM of the mesh as an engine draws it
   tsplus view runs/small                         fly through the result (window; --screenshot out.png --camera N headless)
+  tsplus select runs/small --masks masks/        extract the masked object (object.ply/glb) and remove it
   tsplus train --out runs/live --view            watch training live in a window
 
 environment:
@@ -85,6 +86,8 @@ def build_parser():
         pass
     from .viewer_cli import add_parsers as add_viewer_parsers
     add_viewer_parsers(sub)
+    from .select import add_parser as add_select_parser
+    add_select_parser(sub)
     try:
         from . import bench_backward  # noqa: F401  (its own parser: main() hands it the arguments)
         sub.add_parser("bench-backward", help="benchmark forward + backward per stage (tsplus bench-backward --help)",
@@ -213,6 +216,9 @@ def main(argv=None):
         if args.command == "bench-viewer":
             from .viewer_cli import run_bench_viewer
             return run_bench_viewer(args)
+        if args.command == "select":
+            from .select import run_select
+            return run_select(args)
         if args.command == "inspect":
             from .data import cli as data_cli
             return data_cli.run_inspect(args)

@@ -1,0 +1,278 @@
+"""Object extraction and removal from 2D masks (``tsplus select``).
+
+Opaque triangles make this direct: each pixel of a view belongs to one triangle (the
+triangle-ID buffer of :meth:`Renderer.forward`, ``triangle_ids=True``), so a mask over a
+view selects a set of triangles. Over all views with a mask, a triangle is kept when it is
+under the mask in at least ``vote`` of the views that see it (own at least one pixel of
+their ID buffer). The kept triangles are the object; the rest is the scene without it.
+
+API::
+
+    sel = select_triangles(model, cameras, masks, vote=0.5)    # masks: [H, W] bool or None per camera
+    obj, rest = split_model(model, sel.keep)                    # unused vertices dropped, indices compacted
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .types import TriangleModel
+
+#: sigma of the ID render: nearly hard triangles, as the exported opaque mesh is drawn
+ID_SIGMA = 1e-4
+MASK_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+OUTPUTS = ("object.ply", "object.glb", "scene_without_object.ply", "scene_without_object.glb")
+
+
+@dataclass
+class Selection:
+    """Result of :func:`select_triangles`.
+
+    Attributes:
+        keep: ``[M]`` bool, the object's triangles (selected in >= ``vote`` of the views that see them).
+        selected: ``[M]`` int, views in which the triangle owns a pixel under the mask.
+        visible: ``[M]`` int, views (with a mask) in which the triangle owns at least one pixel.
+        views: indices of the cameras that had a mask.
+        vote: the threshold used.
+    """
+
+    keep: np.ndarray
+    selected: np.ndarray
+    visible: np.ndarray
+    views: list = field(default_factory=list)
+    vote: float = 0.5
+
+    @property
+    def num_selected(self):
+        """Triangles under a mask in at least one view."""
+        return int((self.selected > 0).sum())
+
+    @property
+    def num_kept(self):
+        return int(self.keep.sum())
+
+
+def opaque_model(model: TriangleModel) -> TriangleModel:
+    """The model as the exported mesh is drawn: opacity 1 everywhere, SH DC only."""
+    return TriangleModel(model.positions, model.triangles, model.sh[:, :1], np.ones(model.num_vertices))
+
+
+def triangle_votes(model: TriangleModel, cameras, masks, renderer=None, sigma=ID_SIGMA, near=0.01):
+    """Per triangle, the number of views where it is under the mask and where it is visible.
+
+    Args:
+        model: the mesh (drawn opaque, see :func:`opaque_model`).
+        cameras: one :class:`Camera` per view.
+        masks: per camera ``[H, W]`` bool (True = object) at the camera's size, or None to skip the view.
+        renderer: a :class:`Renderer` (default: a new one).
+
+    Returns:
+        ``(selected [M] int64, visible [M] int64, views list)``.
+    """
+    from .renderer import Renderer
+    if len(masks) != len(cameras):
+        raise ValueError(f"masks: expected one per camera ({len(cameras)}), got {len(masks)}")
+    r = renderer or Renderer()
+    m = model.num_triangles
+    opaque = opaque_model(model)
+    selected = np.zeros(m, np.int64)
+    visible = np.zeros(m, np.int64)
+    views = []
+    for i, (cam, mask) in enumerate(zip(cameras, masks)):
+        if mask is None:
+            continue
+        mask = np.asarray(mask)
+        if mask.shape != (cam.height, cam.width):
+            raise ValueError(f"masks[{i}]: shape {mask.shape} does not match the camera's {cam.height}x{cam.width}")
+        ids = r.forward(opaque, cam, sigma, near=near, triangle_ids=True).triangle_ids
+        drawn = ids >= 0
+        visible[np.unique(ids[drawn])] += 1
+        selected[np.unique(ids[drawn & mask.astype(bool)])] += 1
+        views.append(i)
+    return selected, visible, views
+
+
+def select_triangles(model: TriangleModel, cameras, masks, vote=0.5, renderer=None, sigma=ID_SIGMA, near=0.01):
+    """Triangles of ``model`` under the masks: kept when selected in at least ``vote`` (0 < vote
+    <= 1) of the views that see them, and in one view at least. Returns a :class:`Selection`."""
+    vote = float(vote)
+    if not 0.0 < vote <= 1.0:
+        raise ValueError(f"--vote: expected a fraction in (0, 1], got {vote:g}")
+    selected, visible, views = triangle_votes(model, cameras, masks, renderer, sigma, near)
+    keep = (selected > 0) & (selected >= vote * visible - 1e-9)
+    return Selection(keep=keep, selected=selected, visible=visible, views=views, vote=vote)
+
+
+def submesh(model: TriangleModel, tri_mask) -> TriangleModel:
+    """The triangles where ``tri_mask`` is True, with unused vertices dropped and indices compacted
+    (vertex order kept)."""
+    tri = model.triangles[np.asarray(tri_mask, bool)]
+    used = np.zeros(model.num_vertices, bool)
+    used[tri.ravel()] = True
+    new_index = np.cumsum(used) - 1
+    return TriangleModel(model.positions[used], new_index[tri].reshape(-1, 3), model.sh[used], model.opacity[used])
+
+
+def split_model(model: TriangleModel, keep):
+    """``(object, rest)``: the kept triangles and the others, each a compact model."""
+    keep = np.asarray(keep, bool)
+    return submesh(model, keep), submesh(model, ~keep)
+
+
+# ----------------------------------------------------------------------------- masks on disk
+
+def _is_lossy(path):
+    return Path(path).suffix.lower() in (".jpg", ".jpeg", ".webp")
+
+
+def read_mask(path, width, height):
+    """``[height, width]`` bool mask from an image file: non-zero = object (any of R, G, B; the
+    alpha channel when the colour is black everywhere; JPEG/WebP: >= 128, since lossy compression
+    leaves faint non-zero pixels). A mask an integer factor larger than the view is reduced by
+    block majority."""
+    from .cli import UserError
+    import imageio.v3 as iio
+    try:
+        img = np.asarray(iio.imread(path))
+    except Exception as exc:
+        why = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
+        raise UserError(f"--masks: {path}: cannot read the image ({why}); "
+                        f"replace it with a PNG mask (non-zero = object) or remove it") from None
+    if img.ndim == 3:
+        if img.shape[2] == 4 and not np.any(img[..., :3]):
+            img = img[..., 3]
+        else:
+            img = img[..., :3].max(axis=2) if img.shape[2] >= 3 else img[..., 0]
+    if img.ndim != 2:
+        raise UserError(f"--masks: {path}: expected a 2-D image, got shape {img.shape}")
+    thr = 128 if _is_lossy(path) and img.dtype == np.uint8 else 0
+    mask = img > thr
+    h, w = mask.shape
+    if (h, w) != (height, width):
+        fy, fx = h // height, w // width
+        if fy == fx and fy >= 1 and h == fy * height and w == fx * width:
+            mask = mask.reshape(height, fy, width, fx).mean(axis=(1, 3)) >= 0.5
+        else:
+            raise UserError(f"--masks: {path} is {w}x{h} but its view is {width}x{height}; give masks at the "
+                            f"view's size (or an integer multiple of it)")
+    return mask
+
+
+def find_masks(mask_dir, image_names):
+    """Per view, the mask file named like its image (same stem, any image extension; also
+    under the same relative sub-folder), or None. Returns a list of paths / None."""
+    mask_dir = Path(mask_dir)
+    by_path, by_stem = {}, {}
+
+    def better(old, new):   # PNG first when both exist, else the first in sorted order
+        return old is None or (old.suffix.lower() != ".png" and new.suffix.lower() == ".png")
+
+    for p in sorted(mask_dir.rglob("*")):
+        if p.is_file() and p.suffix.lower() in MASK_EXTENSIONS:
+            key = p.relative_to(mask_dir).with_suffix("").as_posix()
+            if better(by_path.get(key), p):
+                by_path[key] = p
+            if better(by_stem.get(p.stem), p):
+                by_stem[p.stem] = p
+    out = []
+    for name in image_names:
+        rel = Path(name).with_suffix("")
+        out.append(by_path.get(rel.as_posix()) or by_stem.get(rel.name))
+    return out
+
+
+# ----------------------------------------------------------------------------- command line
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "select", help="extract an object from a run's mesh with 2D masks (object.ply/glb) and remove it "
+                       "(scene_without_object.ply/glb)",
+        description="For every view of the run's scene that has a mask in --masks (an image named like the view: "
+                    "same stem, png/jpg; non-zero = object), render the triangle-ID buffer of the run's opaque mesh "
+                    "from that view and collect the triangles under the mask; keep the triangles selected in at "
+                    "least --vote of the views that see them (own a pixel in their ID buffer). Writes object.ply / "
+                    "object.glb (the kept triangles) and scene_without_object.ply / .glb (the rest), unused vertices "
+                    "dropped, atomically, plus selection.json. Views without a mask are skipped and counted.")
+    p.add_argument("run", help="run folder (what tsplus train writes: mesh.ply, checkpoint.npz, config.json) or a "
+                               "mesh file (.ply/.glb/.obj) or checkpoint .npz")
+    p.add_argument("--masks", required=True, metavar="DIR", help="folder of mask images named like the views")
+    p.add_argument("--vote", type=float, default=0.5,
+                   help="keep a triangle when it is under the mask in at least this fraction of the views that "
+                        "see it (default 0.5)")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="output folder (default: the run folder, or the mesh file's folder)")
+    p.add_argument("--scene", default=None,
+                   help="scene whose cameras and view names to use (default: the one the run folder records; "
+                        "needed for a mesh file)")
+    p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
+    return p
+
+
+def run_select(args):
+    from .cli import UserError
+    from .export import export, load_run
+    from .renderer import Renderer
+    from .train.cli import _load
+    mask_dir = Path(args.masks)
+    if not mask_dir.is_dir():
+        raise UserError(f"--masks {mask_dir}: no such folder; give the folder of mask images named like the views")
+    if not 0.0 < args.vote <= 1.0:
+        raise UserError(f"--vote: expected a fraction in (0, 1], got {args.vote:g}")
+    run = Path(args.run)
+    if not run.exists():
+        raise UserError(f"{run}: no such run folder or mesh file")
+    model, info = load_run(run)
+    if model.num_triangles == 0:
+        raise UserError(f"{run}: the mesh has no triangles")
+    scene_arg = args.scene or info.get("scene")
+    if not scene_arg:
+        raise UserError(f"{run}: no scene recorded (config.json); pass --scene SCENE to name the views' scene")
+    out = Path(args.out) if args.out else (run if run.is_dir() else run.parent)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a folder")
+    scene = _load(scene_arg, int(info.get("downscale") or 1), 0)
+    paths = find_masks(mask_dir, scene.image_names)
+    missing = [name for name, p in zip(scene.image_names, paths) if p is None]
+    if len(missing) == len(paths):
+        example = Path(scene.image_names[0]).with_suffix(".png").name if scene.image_names else "VIEW.png"
+        raise UserError(f"--masks {mask_dir}: no mask matches a view of {scene_arg} (expected files named like the "
+                        f"views, e.g. {example}); nothing to select")
+    masks = [None if p is None else read_mask(p, cam.width, cam.height) for p, cam in zip(paths, scene.cameras)]
+    renderer = Renderer(args.adapter)
+    sel = select_triangles(model, scene.cameras, masks, vote=args.vote, renderer=renderer)
+    obj, rest = split_model(model, sel.keep)
+    print(f"adapter: {renderer.adapter_name}")
+    print(f"mesh: {model.num_vertices} vertices / {model.num_triangles} triangles ({info.get('from')}); scene "
+          f"{scene_arg}: {len(scene.cameras)} views")
+    print(f"views used: {len(sel.views)} with a mask; masks missing: {len(missing)}"
+          + (f" ({', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''})" if missing else ""))
+    print(f"triangles: {int((sel.visible > 0).sum())} visible, {sel.num_selected} selected under a mask in at least "
+          f"one view, {sel.num_kept} kept (under the mask in >= {args.vote:g} of the views that see them) -> "
+          f"object; {sel.num_kept} removed, {rest.num_triangles} remain")
+    if sel.num_kept == 0:
+        raise UserError(f"--masks {mask_dir}: no triangle is under the masks in >= {args.vote:g} of the views that "
+                        f"see it; check the masks (non-zero = object) or lower --vote")
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for stem, part in (("object", obj), ("scene_without_object", rest)):
+        if part.num_triangles == 0:
+            print(f"note: {stem} has no triangles; not written")
+            continue
+        for fmt in ("ply", "glb"):
+            written.append(export(part, out / f"{stem}.{fmt}", fmt))
+    report = dict(run=str(run), scene=str(scene_arg), masks=str(mask_dir), vote=args.vote,
+                  views_used=[scene.image_names[i] for i in sel.views], masks_missing=missing,
+                  triangles=model.num_triangles, visible=int((sel.visible > 0).sum()), selected=sel.num_selected,
+                  kept=sel.num_kept, removed=sel.num_kept, remaining=rest.num_triangles,
+                  object_vertices=obj.num_vertices, remaining_vertices=rest.num_vertices,
+                  files=[str(p) for p in written])
+    tmp = out / f".selection.json.tmp{os.getpid()}"
+    tmp.write_text(json.dumps(report, indent=2) + "\n")
+    os.replace(tmp, out / "selection.json")
+    print("wrote " + ", ".join(str(p) for p in written) + f", {out / 'selection.json'}")
+    return 0
