@@ -1,0 +1,198 @@
+"""The optional normal loss (tsplus_wgpu.train.normals): the float64 twin of the whole gradient
+against central finite differences, with a mutation check that fails when either path (the
+blending weights, the 3D normal) is dropped; the WGSL chain against the twin; the normal
+render's decoding; priors on disk; the procedural scene's ground-truth maps; training with
+normals (resume bit-identical, lower normal error than without)."""
+
+import numpy as np
+import pytest
+from scenes import f32_exact, look_at_camera, random_scene
+
+from tsplus_wgpu import TriangleModel
+from tsplus_wgpu import reference as ref
+from tsplus_wgpu.train import normals as nl
+
+W = H = 32
+FD_TOL = 1e-5          # twin vs central differences (relative to the largest FD component)
+WGSL_TOL = 1e-4        # WGSL chain vs twin (relative norm, float32)
+MUTANT_MIN = 1e-2      # a gradient missing one path is at least this far off (measured: 0.1 .. 1)
+
+
+def _scene_ok(model, cam, sigma):
+    um = nl.normal_model_reference(model, cam)
+    r = ref.render(um, cam, sigma)
+    proj = r.projection
+    vis = proj.visible
+    depths = np.sort(proj.depth[vis])
+    if r.ambiguous.any() or vis.sum() < 6 or (r.n_contrib > 0).sum() < 300:
+        return False
+    if depths.size > 1 and np.diff(depths).min() < 1e-3:
+        return False
+    # window ratio of every contributing pixel well above 0 where the window is steep
+    if sigma < 1:
+        for t in np.nonzero(vis)[0]:
+            x0, y0, x1, y1 = proj.rect[t]
+            ys, xs = np.mgrid[y0:y1 + 1, x0:x1 + 1]
+            d = np.stack([xs + 0.5 - proj.s[t, 0], ys + 0.5 - proj.s[t, 1]], -1)
+            ratio = (1.0 + d @ proj.g[t].T).min(-1)
+            if np.any((ratio > 0) & (ratio < 2e-3)):
+                return False
+    # no triangle seen nearly edge-on (its camera-facing sign must not flip under a small step)
+    n, _, _, _ = nl.triangle_normals_reference(model.positions, model.triangles, cam)
+    c = model.positions[model.triangles].mean(1) @ cam.R.T + cam.t
+    cosang = np.abs(np.einsum("mi,mi->m", n, c)) / np.linalg.norm(c, axis=1)
+    return bool(cosang.min() > 0.05)
+
+
+def _prior(seed, h=H, w=W):
+    rng = np.random.default_rng(seed)
+    raw = np.array([0.3, -0.2, -1.0]) + 0.5 * rng.normal(size=(h, w, 3))
+    raw /= np.linalg.norm(raw, axis=2, keepdims=True)
+    raw[:3] = 0.0                      # rows without a prior
+    raw[5, 7] = np.nan
+    return nl.prepare_prior(raw)
+
+
+_SCENES = {}
+
+
+def scenes_for(sigma, count=2):
+    if sigma not in _SCENES:
+        found, seed = [], 200
+        while len(found) < count:
+            seed += 1
+            model, cam = f32_exact(*random_scene(seed, W, H, sheets=3, points_per_sheet=6, sh_k=1))
+            if model.num_triangles <= 20 and _scene_ok(model, cam, sigma):
+                found.append((seed, model, cam))
+        _SCENES[sigma] = found
+    return _SCENES[sigma]
+
+
+def _with(model, positions=None, opacity=None):
+    return TriangleModel(model.positions if positions is None else positions, model.triangles, model.sh,
+                         model.opacity if opacity is None else opacity)
+
+
+def _fd(model, cam, sigma, prior, valid, h=1e-6):
+    def loss(**kw):
+        return nl.normal_loss_value_reference(_with(model, **kw), cam, sigma, prior, valid)
+    fd_x = np.zeros(model.positions.size)
+    for i in range(fd_x.size):
+        vals = []
+        for sgn in (1, -1):
+            a = model.positions.copy().ravel()
+            a[i] += sgn * h
+            vals.append(loss(positions=a.reshape(-1, 3)))
+        fd_x[i] = (vals[0] - vals[1]) / (2 * h)
+    fd_o = np.zeros(model.num_vertices)
+    for i in range(fd_o.size):
+        vals = []
+        for sgn in (1, -1):
+            a = model.opacity.copy()
+            a[i] += sgn * h
+            vals.append(loss(opacity=a))
+        fd_o[i] = (vals[0] - vals[1]) / (2 * h)
+    return fd_x.reshape(-1, 3), fd_o
+
+
+def _err(a, fd):
+    return float(np.abs(np.asarray(a, np.float64) - fd).max() / np.abs(fd).max())
+
+
+def _rel(a, b):
+    return float(np.linalg.norm(np.asarray(a, np.float64) - b) / max(np.linalg.norm(b), 1e-300))
+
+
+@pytest.mark.parametrize("sigma", [1.0, 0.3])
+def test_twin_matches_finite_differences_and_needs_both_paths(sigma):
+    for seed, model, cam in scenes_for(sigma):
+        prior, valid = _prior(seed)
+        loss, v_x, v_o = nl.normal_loss_reference(model, cam, sigma, prior, valid)
+        assert loss == pytest.approx(nl.normal_loss_value_reference(model, cam, sigma, prior, valid), abs=1e-15)
+        fd_x, fd_o = _fd(model, cam, sigma, prior, valid)
+        assert np.abs(fd_x).max() > 0 and np.abs(fd_o).max() > 0
+        e_x, e_o = _err(v_x, fd_x), _err(v_o, fd_o)
+        print(f"sigma {sigma} seed {seed}: positions {e_x:.2e}, opacity {e_o:.2e}")
+        assert e_x <= FD_TOL and e_o <= FD_TOL, (seed, e_x, e_o)
+        # mutation check: without the blending-weight path, or without the 3D-normal path,
+        # the positions' gradient is far off the finite differences
+        for paths in (("alpha",), ("normal",)):
+            _, m_x, _ = nl.normal_loss_reference(model, cam, sigma, prior, valid, paths=paths)
+            e = _err(m_x, fd_x)
+            print(f"  only {paths[0]}: positions {e:.2e}")
+            assert e > 100 * FD_TOL and e > MUTANT_MIN, (seed, paths, e)
+        # the weight scales loss and gradient
+        l2, x2, o2 = nl.normal_loss_reference(model, cam, sigma, prior, valid, weight=0.05)
+        assert l2 == pytest.approx(0.05 * loss) and np.allclose(x2, 0.05 * v_x) and np.allclose(o2, 0.05 * v_o)
+
+
+@pytest.mark.parametrize("sigma", [1.0, 0.3])
+def test_wgsl_chain_matches_twin(renderer, sigma):
+    loss_kernel = nl.NormalLoss(renderer)
+    for seed, model, cam in scenes_for(sigma):
+        prior, valid = _prior(seed)
+        loss, v_x, v_o = nl.normal_loss_reference(model, cam, sigma, prior, valid, weight=0.05)
+        d_loss, d_x, d_o = loss_kernel.gradients(model, cam, sigma, prior, valid, weight=0.05)
+        e_x, e_o = _rel(d_x, v_x), _rel(d_o, v_o)
+        print(f"sigma {sigma} seed {seed}: WGSL vs twin positions {e_x:.2e}, opacity {e_o:.2e}, "
+              f"loss {abs(d_loss - loss):.1e}")
+        assert e_x <= WGSL_TOL and e_o <= WGSL_TOL, (seed, e_x, e_o)
+        assert d_loss == pytest.approx(loss, rel=1e-5)
+        for paths in (("alpha",), ("normal",)):
+            _, m_x, _ = nl.normal_loss_reference(model, cam, sigma, prior, valid, weight=0.05, paths=paths)
+            assert _rel(d_x, m_x) > MUTANT_MIN, (seed, paths)
+        # deterministic: bit-identical on a second run
+        again = loss_kernel.gradients(model, cam, sigma, prior, valid, weight=0.05)
+        np.testing.assert_array_equal(again[1], d_x)
+        np.testing.assert_array_equal(again[2], d_o)
+
+
+def test_normal_render_decodes_the_facing_normal(renderer):
+    """An opaque, sharp quad: N = 2 C - (1 - T) is its camera-facing unit normal (times the
+    alpha cap 0.99) whatever the winding; off the quad N = 0; both on the device and the twin."""
+    cam = look_at_camera(24, 24)
+    pos = np.array([[-3, -3, 0], [3, -3, 0], [3, 3, 0], [-3, 3, 0]], float)
+    pos[:, 2] = 0.3 * pos[:, 0]                      # the plane z = 0.3 x, seen from z = -4
+    want_w = np.array([0.3, 0.0, -1.0]) / np.linalg.norm([0.3, 0.0, -1.0])   # its normal towards the camera
+    want = cam.R @ want_w
+    for tris in (np.array([[0, 1, 2], [0, 2, 3]]), np.array([[0, 2, 1], [0, 3, 2]])):
+        model = TriangleModel(pos, tris, np.zeros((4, 1, 3)), np.ones(4))
+        n_twin, t_twin = nl.normal_render_reference(model, cam, 1e-4)
+        centre = n_twin[8:16, 8:16].reshape(-1, 3)
+        assert np.allclose(centre, 0.99 * want, atol=2e-3), centre[0]
+        k = nl.NormalLoss(renderer)
+        k.set_topology(tris, 4)
+        from tsplus_wgpu import DeviceModel
+        dm = DeviceModel.from_model(renderer, model)
+        prior = np.broadcast_to(want.astype(np.float32), (24, 24, 3)).copy()
+        tgt, _ = k.target(prior, np.ones((24, 24), bool))
+        c = renderer.ctx
+        res = k.run(cam, 1e-4, 0.01, dm.buffers["positions"], dm.buffers["triangles"], dm.buffers["opacity"], tgt,
+                    c.buffer(48), c.buffer(16), 1.0)
+        n_dev = 2.0 * res.image - (1.0 - res.transmittance)[..., None]
+        sure = ~ref.render(nl.normal_model_reference(model, cam), cam, 1e-4).ambiguous   # not on the diagonal
+        assert sure.mean() > 0.9
+        np.testing.assert_allclose(n_dev[sure], n_twin[sure], atol=1e-5)
+    model = TriangleModel(pos * 0.1, np.array([[0, 1, 2]]), np.zeros((4, 1, 3)), np.ones(4))
+    n_twin, _ = nl.normal_render_reference(model, cam, 1e-4)
+    assert np.all(n_twin[0, 0] == 0.0)               # nothing drawn: N = 0 (background 0)
+
+
+def test_prepare_prior_and_error_metric():
+    raw = np.zeros((2, 3, 3))
+    raw[0, 0] = [0, 0, -2.0]          # too long: ignored
+    raw[0, 1] = [0, 0, -1.2]          # normalised
+    raw[0, 2] = [np.nan, 0, -1]
+    raw[1, 0] = [0.6, 0, -0.8]
+    raw[1, 1] = [0, 0, -0.4]          # too short: ignored
+    prior, valid = nl.prepare_prior(raw, alpha=np.array([[1, 1, 1], [1, 1, 1]]))
+    assert valid.tolist() == [[False, True, False], [True, False, False]]
+    np.testing.assert_allclose(prior[0, 1], [0, 0, -1])
+    assert np.all(prior[~valid] == 0)
+    _, valid_a = nl.prepare_prior(raw, alpha=np.array([[1, 0, 1], [1, 1, 1]]))
+    assert valid_a.sum() == 1
+    err = nl.normal_error(np.broadcast_to([0.0, 0.0, -0.5], (2, 3, 3)), prior, valid)
+    assert err["pixels"] == 2 and err["loss"] == pytest.approx(1 - (0.5 + 0.4) / 2)
+    assert err["angle_deg"] == pytest.approx(np.degrees(np.arccos(0.8)) / 2)
+    vi, vt, cnt = nl.normal_cotangents(prior, valid)
+    assert cnt == 2 and np.allclose(vi[valid], -prior[valid]) and np.allclose(vt[0, 1], 0.5)
