@@ -196,3 +196,118 @@ def test_prepare_prior_and_error_metric():
     assert err["angle_deg"] == pytest.approx(np.degrees(np.arccos(0.8)) / 2)
     vi, vt, cnt = nl.normal_cotangents(prior, valid)
     assert cnt == 2 and np.allclose(vi[valid], -prior[valid]) and np.allclose(vt[0, 1], 0.5)
+
+
+# ---------------------------------------------------------------------- priors on disk
+
+@pytest.fixture(scope="module")
+def tiny():
+    from tsplus_wgpu.data import load_procedural
+    return load_procedural("tiny")
+
+
+@pytest.fixture(scope="module")
+def tiny_maps(tiny):
+    from tsplus_wgpu.data.procedural import normal_maps
+    return normal_maps(tiny)
+
+
+def test_ground_truth_maps_match_the_normal_render_of_the_ground_truth_mesh(renderer, tiny, tiny_maps):
+    """The helper's maps and the loss's normal render agree on the convention: the opaque
+    ground-truth mesh drawn through the normal render (sigma 1e-4) is within a few degrees of
+    its own maps (the rest: the alpha cap 0.99 letting 1 % of the surface behind through, and
+    pixels on silhouettes)."""
+    from tsplus_wgpu.cli import _demo_model
+    model = _demo_model(0)
+    k = nl.NormalLoss(renderer)
+    for v in (0, 3):
+        prior, valid = nl.prepare_prior(tiny_maps[v])
+        assert valid.mean() > 0.99                     # a closed room: every pixel sees a surface
+        assert np.allclose(np.linalg.norm(tiny_maps[v], axis=2)[valid], 1.0, atol=1e-6)
+        assert prior[valid][:, 2].mean() < -0.3         # facing the camera: z < 0 on average
+        loss, _, _ = k.gradients(model, tiny.cameras[v], 1e-4, prior, valid)
+        n_twin, _ = nl.normal_render_reference(model, tiny.cameras[v], 1e-4)
+        err = nl.normal_error(n_twin, prior, valid)
+        print(f"view {v}: GT mesh vs its maps: 1 - cos {err['loss']:.4f}, mean angle {err['angle_deg']:.2f} deg, "
+              f"device loss {loss:.4f}")
+        assert err["angle_deg"] < 3.0 and err["loss"] < 0.03
+        assert loss == pytest.approx(err["loss"], abs=2e-3)
+        # a wrong convention is far off: OpenGL axes (y, z negated)
+        assert nl.normal_error(n_twin, prior * np.array([1, -1, -1], np.float32), valid)["angle_deg"] > 60
+
+
+def test_normal_maps_on_disk_npy_png_missing_resized(tiny, tiny_maps, tmp_path):
+    from tsplus_wgpu.data.normals import load_normal_maps, write_normal_maps
+    train = tiny.train_indices
+    for fmt in ("npy", "png"):
+        folder = tmp_path / fmt
+        paths = write_normal_maps(folder, tiny, tiny_maps, fmt)
+        assert len(paths) == len(tiny.images) and not list(folder.glob(".*tmp*"))
+        got = load_normal_maps(tiny, folder)
+        assert got.count == len(train) and not got.missing and not got.warnings
+        assert all(got.maps[v] is None for v in tiny.test_indices)
+        for v in train:
+            prior, valid = nl.prepare_prior(tiny_maps[v])
+            np.testing.assert_array_equal(got.maps[v][1], valid)
+            np.testing.assert_allclose(got.maps[v][0], prior, atol=1e-7 if fmt == "npy" else 1e-4)
+    # a missing map: that view gets none, and the summary says so
+    (tmp_path / "npy" / f"{tiny.image_names[train[0]].rsplit('.', 1)[0]}.npy").unlink()
+    got = load_normal_maps(tiny, tmp_path / "npy")
+    assert got.count == len(train) - 1 and got.missing == [tiny.image_names[train[0]]]
+    assert f"{len(train) - 1} of {len(train)} training views" in got.summary(len(train))
+    assert "1 without a map get no normal loss" in got.summary(len(train))
+    # another size: area-resized with a warning; the wrong convention: a warning
+    big = tmp_path / "big"
+    big.mkdir()
+    v = train[1]
+    stem = tiny.image_names[v].rsplit(".", 1)[0]
+    np.save(big / f"{stem}.npy", np.repeat(np.repeat(tiny_maps[v], 2, axis=0), 2, axis=1))
+    np.save(big / f"{tiny.image_names[train[2]].rsplit('.', 1)[0]}.npy", -tiny_maps[train[2]])
+    got = load_normal_maps(tiny, big)
+    assert got.count == 2
+    assert any("resized (area)" in w for w in got.warnings) and any("another convention" in w for w in got.warnings)
+    prior, valid = nl.prepare_prior(tiny_maps[v])
+    both = valid & got.maps[v][1]
+    np.testing.assert_allclose(got.maps[v][0][both], prior[both], atol=1e-5)
+
+
+@pytest.mark.parametrize("name,content,msg", [
+    ("x.npy", "shape", "must have shape [H, W, 3]"),
+    ("x.npy", "ints", "must hold floats"),
+    ("x.npy", b"not numpy", "not a readable .npy"),
+    ("x.png", b"\x89PNG garbage", "not a readable PNG"),
+    ("x.png", "grey", "RGB or RGBA"),
+    ("x.npy", "aspect", "different aspect ratio"),
+])
+def test_malformed_normal_maps_are_one_line_errors(tiny, tmp_path, name, content, msg):
+    import cv2
+
+    from tsplus_wgpu.data import SceneError
+    from tsplus_wgpu.data.normals import load_normal_maps
+    v = tiny.train_indices[0]
+    path = tmp_path / (tiny.image_names[v].rsplit(".", 1)[0] + name[1:])
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    elif content == "shape":
+        np.save(path, np.zeros((48, 64), np.float32))
+    elif content == "ints":
+        np.save(path, np.zeros((48, 64, 3), np.int32))
+    elif content == "grey":
+        cv2.imwrite(str(path), np.zeros((48, 64), np.uint8))
+    elif content == "aspect":
+        np.save(path, np.zeros((48, 48, 3), np.float32))
+    with pytest.raises(SceneError) as exc:
+        load_normal_maps(tiny, tmp_path)
+    text = str(exc.value)
+    assert msg in text and str(path) in text and "\n" not in text
+
+
+def test_inspect_writes_ground_truth_normals(tmp_path):
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, "-m", "tsplus_wgpu.cli", "inspect", "procedural:tiny", "--quiet",
+                        "--write-normals", str(tmp_path / "n"), "--normals-format", "png"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "wrote 8 ground-truth normal maps (png)" in r.stdout
+    assert len(list((tmp_path / "n").glob("view_*.png"))) == 8

@@ -33,6 +33,14 @@ def _add_arguments(p):
                    help="initial points when the scene has none (default auto: triangulate, else frusta)")
     p.add_argument("--strict", action="store_true", help="stop at the first missing or unreadable image")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--write-normals", default=None, metavar="DIR",
+                   help="write the ground-truth normal map of every view to DIR (scenes with a ground-truth mesh: "
+                        "the procedural scene), named like the views, in the convention of `tsplus train --normals`: "
+                        "camera space, OpenCV axes (x right, y down, z forward), facing the camera, zero where no "
+                        "surface is seen")
+    p.add_argument("--normals-format", choices=("npy", "png"), default="npy",
+                   help="--write-normals file format: npy (float32 [H, W, 3]) or png (16-bit RGBA, rgb = (n + 1) / 2, "
+                        "alpha 0 where no surface); default npy")
 
 
 def run_inspect(args) -> int:
@@ -50,6 +58,15 @@ def run_inspect(args) -> int:
         print(f"tsplus inspect: error: {exc}", file=sys.stderr)
         return 2
     print(scene.summary())
+    if getattr(args, "write_normals", None):
+        if scene.gt_mesh is None:
+            print(f"tsplus inspect: error: --write-normals: {args.scene} has no ground-truth mesh (only the procedural "
+                  "scene has one)", file=sys.stderr)
+            return 2
+        from .normals import write_normal_maps  # noqa: PLC0415
+        from .procedural import normal_maps  # noqa: PLC0415
+        paths = write_normal_maps(args.write_normals, scene, normal_maps(scene), args.normals_format)
+        print(f"wrote {len(paths)} ground-truth normal maps ({args.normals_format}) to {args.write_normals}")
     return 0
 
 

@@ -530,3 +530,32 @@ def load_procedural(size: str = "tiny", seed: int = 0, split="auto", point_noise
                  root=None, background=(0.0, 0.0, 0.0), camera_models={"PINHOLE": nviews},
                  split_rule=rule, gt_mesh=GTMesh(verts, faces, fobj, [o.name for o in objs]),
                  masks=masks, depths=depths)
+
+
+# --------------------------------------------------------------------------- normal maps
+def render_normal_map(mesh, cam: Camera) -> np.ndarray:
+    """The ground-truth normal map of one view: ``[H, W, 3]`` float32, the visible face's unit
+    normal in camera space (OpenCV: x right, y down, z forward) facing the camera, sampled at
+    the pixel centres; zero where no surface is seen. This is the convention of
+    ``tsplus train --normals`` (:mod:`tsplus_wgpu.data.normals`)."""
+    verts, faces = mesh[0], mesh[1]
+    face, _, point = rasterize(verts, faces, cam, ss=1)
+    n_world = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
+    n_world /= np.maximum(np.linalg.norm(n_world, axis=1, keepdims=True), 1e-300)
+    hit = face >= 0
+    out = np.zeros((cam.height, cam.width, 3))
+    n = n_world[face[hit]] @ cam.R.T
+    x = point[hit] @ cam.R.T + cam.t
+    flip = np.einsum("pi,pi->p", n, x) > 0
+    n[flip] *= -1.0
+    out[hit] = n
+    return out.astype(np.float32)
+
+
+def normal_maps(scene) -> list:
+    """Ground-truth normal maps (:func:`render_normal_map`) of every view of a scene with a
+    ground-truth mesh (the procedural scene), in view order."""
+    if scene.gt_mesh is None:
+        raise ValueError("scene: it has no ground-truth mesh (only the procedural scene has one)")
+    g = scene.gt_mesh
+    return [render_normal_map((g.vertices, g.faces), cam) for cam in scene.cameras]
