@@ -243,10 +243,10 @@ class TopologyStrategy:
     def pre_step(self, trainer, it):
         """Nothing to do before a step (kept for the strategy interface)."""
 
-    def post_step(self, trainer, it, result, view, loss_buf, enc):
+    def post_step(self, trainer, it, result, view, loss_buf, enc, profiler=None):
         """Record the step's accumulation into ``enc``; returns True when ``it`` is a topology
         step (the trainer then submits and calls :meth:`edit`)."""
-        self.kernel(enc, result.buffers["max_weight"], self.acc, trainer.m)
+        self.kernel(enc, result.buffers["max_weight"], self.acc, trainer.m, profiler=profiler)
         enc.copy_buffer_to_buffer(loss_buf, 4, self.ring, 4 * (it % self.ring_size), 4)
         self.seen.add(int(view))
         s = self.sched

@@ -280,19 +280,22 @@ class Trainer:
             s //= 2
         return s
 
-    def render_supersampled(self, model, camera, sigma, s, enc=None):
+    def render_supersampled(self, model, camera, sigma, s, enc=None, profiler=None):
         """Forward with the s-times camera and, for s > 1, area-downsample on the device.
-        Returns ``(forward result, image buffer [H * W * 3] at the camera's resolution)``."""
+        Returns ``(forward result, image buffer [H * W * 3] at the camera's resolution)``.
+        ``profiler``: a :class:`~.profile.StepProfiler` that gets the forward's stage times."""
         s = self.fit_supersample(camera, s)
         res = self.renderer.forward(model, supersampled_camera(camera, s), sigma, self.config.background,
-                                    self.config.near)
+                                    self.config.near, profile=profiler is not None)
+        if profiler is not None:
+            profiler.add_kernels(res.timings)
         if s == 1:
             return res, res.buffers["image"], 1
         h, w = camera.height, camera.width
         out = self.renderer.scratch.get("train_image_down", 12 * h * w)
         own = enc is None
         enc = self.ctx.device.create_command_encoder() if own else enc
-        self.down(enc, res.buffers["image"], out, w, h, s)
+        self.down(enc, res.buffers["image"], out, w, h, s, profiler=profiler.profiler("loss") if profiler else None)
         if own:
             self.ctx.queue.submit([enc.finish()])
         return res, out, s
@@ -305,11 +308,15 @@ class Trainer:
         return self.train_views[int(perm[pos])]
 
     # ------------------------------------------------------------------ one step
-    def step(self, read_stats=False):
+    def step(self, read_stats=False, profile=False):
         """One optimisation step (iteration ``self.iteration + 1``). With ``read_stats`` the
-        loss and the training-view PSNR are read back (a host round trip) and returned."""
+        loss and the training-view PSNR are read back (a host round trip) and returned. With
+        ``profile`` the step's per-stage times (ms; :mod:`.profile`) go to ``self.step_times``
+        (timestamp queries where supported, else per-stage submits timed on the host)."""
         c, s = self.ctx, self.sched
         it = self.iteration + 1
+        sp = self._step_profiler() if profile else None
+        lp, op, tp = (sp.profiler("loss"), sp.profiler("optimizer"), sp.profiler("topology")) if sp else (None,) * 3
         self.topology.pre_step(self, it)
         floor = s.opacity_floor(it)
         if s.opacity_floor_changes(it):
@@ -318,37 +325,48 @@ class Trainer:
         cam = self.scene.cameras[view]
         h, w = cam.height, cam.width
         enc = c.device.create_command_encoder()
-        res, image, ss = self.render_supersampled(self.model, cam, s.sigma(it), s.supersample(it), enc)
+        res, image, ss = self.render_supersampled(self.model, cam, s.sigma(it), s.supersample(it), enc, sp)
         scr = self.renderer.scratch
         v_img = scr.get("train_v_image", 12 * h * w)
         v_out = scr.get("train_v_out", 16 * h * w * ss * ss)
         loss_buf = scr.get("train_loss", 16)
-        self.loss_image.record(enc, image, self._target(view), v_img, loss_buf, w, h)
+        self.loss_image.record(enc, image, self._target(view), v_img, loss_buf, w, h, profiler=lp)
         if ss == 1:
-            self.pack(enc, v_img, v_out, h * w)
+            self.pack(enc, v_img, v_out, h * w, profiler=lp)
         else:
-            self.down_t(enc, v_img, v_out, w, h, ss)
+            self.down_t(enc, v_img, v_out, w, h, ss, profiler=lp)
         c.queue.submit([enc.finish()])
-        self.renderer.backward(res, v_out, read=False, out=self.gbuf)
+        if sp is None:
+            self.renderer.backward(res, v_out, read=False, out=self.gbuf)
+        else:
+            from ..backward import backward
+            sp.mark("loss")
+            sp.add_kernels(backward(self.renderer, res, v_out, profile=True, read=False, out=self.gbuf))
         enc = c.device.create_command_encoder()
         reg_w = s.opacity_reg_weight(it) if self.config.opacity_reg else 0.0
         if reg_w > 0:
             self.reg.record(enc, self.model.buffers["triangles"], self.model.buffers["opacity"], self.reg_vals,
-                            self.reg_out, reg_w)
+                            self.reg_out, reg_w, profiler=op)
         active_k = min(self.k, (s.sh_degree(it) + 1) ** 2)
         self.grads(enc, self.params["logits"], self.gbuf["v_sh"], self.gbuf["v_opacity"], self.reg_out,
-                   self.pgrad["sh"], self.pgrad["logits"], self.n, self.k, active_k, floor, reg_w > 0)
+                   self.pgrad["sh"], self.pgrad["logits"], self.n, self.k, active_k, floor, reg_w > 0, profiler=op)
         lr = s.learning_rates(it)
         n = self.n
         groups = (("positions", lr["positions"], 0, 3 * n), ("sh", lr["sh_dc"], 0, 3 * n),
                   ("sh", lr["sh_rest"], 3 * n, 3 * n * (self.k - 1)), ("logits", lr["opacity"], 0, n))
         for key, rate, off, size in groups:
             m1, m2 = self.moments[key]
-            self.adam.record(enc, self.params[key], self.pgrad[key], m1, m2, size, rate, it, offset=off)
+            self.adam.record(enc, self.params[key], self.pgrad[key], m1, m2, size, rate, it, offset=off, profiler=op)
         self.activate(enc, self.params["sh"], self.params["logits"], self.model.buffers["sh"],
-                      self.model.buffers["opacity"], n, self.k, floor)
-        edit = self.topology.post_step(self, it, res, view, loss_buf, enc)
+                      self.model.buffers["opacity"], n, self.k, floor, profiler=op)
+        if sp is not None:        # the topology's per-step work in a submit of its own
+            c.queue.submit([enc.finish()])
+            sp.mark("optimizer")
+            enc = c.device.create_command_encoder()
+        edit = self.topology.post_step(self, it, res, view, loss_buf, enc, profiler=tp)
         c.queue.submit([enc.finish()])
+        if sp is not None:
+            sp.mark("topology")
         self.iteration = it
         stats = None
         if read_stats:
@@ -357,8 +375,20 @@ class Trainer:
             stats = dict(loss=float(loss[0]), l1=float(loss[1]), ssim=float(loss[2]),
                          psnr=psnr(img, self.scene.images[view]), view=int(view), supersample=int(ss))
         if edit:
+            t_edit = time.perf_counter()
             self.topology.edit(self, it)
+            if sp is not None:
+                sp.host("topology", time.perf_counter() - t_edit)
+        if sp is not None:
+            self.step_times = sp.finish()
         return stats
+
+    def _step_profiler(self):
+        if getattr(self, "_profiler", None) is None:
+            from .profile import StepProfiler
+            self._profiler = StepProfiler(self.ctx)
+        self._profiler.begin()
+        return self._profiler
 
     # ------------------------------------------------------------------ loop
     def train(self, out_dir=None, progress=True, until=None, log_every=None):
