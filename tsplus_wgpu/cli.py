@@ -21,6 +21,7 @@ examples:
   tsplus export runs/small --format glb --y-up   engine-ready mesh (ply|glb|obj)
   tsplus eval runs/small procedural:small        held-out PSNR/SSIM of the mesh as an engine draws it
   tsplus view runs/small                         fly through the result (window; --screenshot out.png --camera N headless)
+  tsplus view runs/small --walk                  walk through it: gravity and collision against the mesh
   tsplus select runs/small --masks masks/        extract the masked object (object.ply/glb) and remove it
   tsplus train --out runs/live --view            watch training live in a window
 

@@ -33,6 +33,10 @@ def load_viewer():
     return mod
 
 
+WALK_KEYS = ("W A S D walk, mouse drag or arrow keys look, Space jump, Shift run, R back to the start, N/B walk "
+             "from the next/previous scene camera")
+
+
 def add_parsers(sub):
     p = sub.add_parser("view", help="view a run folder, PLY, GLB or OBJ in a window (or render screenshots "
                                     "headless)",
@@ -41,7 +45,8 @@ def add_parsers(sub):
                                    "fly, F toggles mouse look, N/B (or ]/[) snap to the next/previous scene camera, "
                                    "X wireframe, T soft splatting render vs opaque mesh, K screenshot, H HUD, "
                                    "R reset, Esc quit. With --screenshot it renders one image offscreen (no "
-                                   "display needed).")
+                                   "display needed). --walk: first-person walking instead (gravity and collision "
+                                   "against the mesh): " + WALK_KEYS + ".")
     p.add_argument("path", help="run folder, .ply, .glb, .obj or checkpoint .npz")
     p.add_argument("--scene", default=None, help="scene whose cameras to use (default: the one the run "
                                                  "folder records)")
@@ -56,6 +61,11 @@ def add_parsers(sub):
     p.add_argument("--wireframe", action="store_true", help="start in wireframe")
     p.add_argument("--hud", action="store_true", help="draw the HUD into --screenshot images too")
     p.add_argument("--max-fps", type=float, default=60.0, help="window frame-rate cap (default 60)")
+    p.add_argument("--walk", action="store_true",
+                   help="walk through the mesh in first person, starting below the first (or --camera) view: "
+                        "gravity, ground contact and collision with walls (trimesh queries, embree when embreex is "
+                        "installed). Keys: " + WALK_KEYS + "; X, H, K, Esc as usual. With --screenshot: the walker's "
+                        "view after standing for one second")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
 
     p = sub.add_parser("bench-viewer", help="benchmark the viewer: FPS at 100k triangles, training it/s with and "
@@ -151,9 +161,12 @@ def run_view(args):
             c = cameras[args.camera]
             size = (c.width, c.height)
         viewer = v.Viewer(source, cameras, size=size, offscreen=True, background=bg, hud=args.hud,
-                          camera_index=args.camera)
+                          camera_index=args.camera, walk=args.walk)
         viewer.mode = "splat" if args.splat else "mesh"
         viewer.wire = args.wireframe
+        if viewer.walking is not None:
+            for _ in range(60):            # stand for a second: the walker settles on the ground
+                viewer.walking.walker.step(1 / 60)
         img = viewer.frame()
         import imageio.v3 as iio
         out = Path(args.screenshot)
@@ -167,7 +180,7 @@ def run_view(args):
     if why is None:
         try:
             viewer = v.Viewer(source, cameras, size=size, background=bg, max_fps=args.max_fps,
-                              camera_index=args.camera, title=f"tsplus view {args.path}")
+                              camera_index=args.camera, title=f"tsplus view {args.path}", walk=args.walk)
         except v.NoDisplayError as exc:
             why = str(exc)
     if viewer is None:
@@ -177,6 +190,10 @@ def run_view(args):
     viewer.wire = args.wireframe
     print(f"tsplus view: {model.num_vertices} vertices / {model.num_triangles} triangles ({info.get('from')}); "
           f"{len(cameras or [])} scene cameras; {renderer.adapter_name}")
+    if viewer.walking is not None:
+        w = viewer.walking.walker
+        print(f"walking: eye height {w.eye_height:.3g}, body radius {w.radius:.3g}, up {np.round(w.up, 3).tolist()}, "
+              f"ray queries through {w.collider.backend}; {WALK_KEYS}")
     viewer.run()
     return 0
 

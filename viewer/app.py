@@ -287,7 +287,7 @@ class Viewer:
     """
 
     def __init__(self, source, cameras=None, size=None, offscreen=False, background=(0, 0, 0), hud=True,
-                 max_fps=30.0, screenshot_dir=".", title="tsplus view", camera_index=None):
+                 max_fps=30.0, screenshot_dir=".", title="tsplus view", camera_index=None, walk=False):
         self.source = source
         self.cameras = list(cameras or [])
         self.renderer = source.renderer
@@ -318,6 +318,14 @@ class Viewer:
         self.last_image = None
         self.closed = False
         self._open_canvas(title)
+        self.walking = None        # walk.WalkInput while walking (--walk)
+        if walk:
+            self.start_walk()
+
+    def start_walk(self):
+        """Walk from the current view: gravity and collision against the mesh (viewer/walk.py)."""
+        from .walk import start_walk
+        self.walking = start_walk(self.source, self.controller.camera.camera(*self.size), self.cameras)
 
     # ------------------------------------------------------------------ setup
     def _initial_camera(self):
@@ -386,6 +394,8 @@ class Viewer:
         if event.get("event_type") == "close":
             self.closed = True
             return
+        if self.walking is not None and self.walking.handle(event):
+            return
         self.controller.handle(event)
 
     # ------------------------------------------------------------------ actions
@@ -397,6 +407,8 @@ class Viewer:
         cam = self.cameras[self.camera_index]
         self.controller.camera = OrbitCamera.from_camera(cam, distance=self._focus_distance(cam),
                                                          up=self._scene_up())
+        if getattr(self, "walking", None) is not None:
+            self.start_walk()
 
     def _apply(self, actions):
         for a in actions:
@@ -420,6 +432,8 @@ class Viewer:
                 self.close()
 
     def current_camera(self) -> Camera:
+        if getattr(self, "walking", None) is not None:
+            return self.walking.walker.camera(*self.size, self.controller.camera.intrinsics)
         return self.controller.camera.camera(*self.size)
 
     def fps(self):
@@ -437,7 +451,8 @@ class Viewer:
         return [f"ITER {it if it is not None else '-'}  LOSS {'-' if loss is None else f'{loss:.4f}'}  "
                 f"PSNR {'-' if ps is None else f'{ps:.2f}'}",
                 f"VERTS {self.source.num_vertices}  TRIS {self.source.num_triangles}",
-                f"FPS {self.fps():.1f}  {mode}  {cam}{'  FLY' if self.controller.fly_mode else ''}"]
+                f"FPS {self.fps():.1f}  {mode}  {cam}{'  FLY' if self.controller.fly_mode else ''}"
+                + ("" if self.walking is None else f"  WALK{'' if self.walking.walker.on_ground else ' (AIR)'}")]
 
     # ------------------------------------------------------------------ drawing
     def _draw(self):
@@ -502,7 +517,7 @@ class Viewer:
             return None
         dt = 0.0 if self._last_frame is None else min(now - self._last_frame, 0.25)
         self._last_frame = now
-        self.controller.update(dt)
+        (self.walking.update if self.walking is not None else self.controller.update)(dt)
         self._apply(self.controller.take_actions())
         if self.closed:
             return None
