@@ -159,3 +159,51 @@ def test_prune_moves_adam_rows_with_their_vertices(renderer, tiny):
     old_tris = {tuple(sorted(tr)) for tr in a["triangles"]}
     assert all(tuple(sorted(old[tr])) in old_tris for tr in b["triangles"])
     assert not t.topology.max_weight(t).any() and t.topology.seen == set()   # reset after the prune
+
+
+def _strategy(**kw):
+    from tsplus_wgpu.train.topology import TopologyStrategy
+    return TopologyStrategy(Schedule(total=30000), **kw)
+
+
+def test_densify_stop_criterion():
+    """Stops when the mean L1 of the last K windows improved by less than stop_rel on the K
+    before; not while it still improves; not before 2K windows; max-vertices has its own reason;
+    0 disables the L1 test."""
+    s = _strategy(stop_rel=0.01, stop_windows=3)
+    s.l1_windows = [0.10, 0.09, 0.08, 0.07, 0.06]          # 5 < 2K windows: no test yet
+    s._check_stop(1000, 100)
+    assert s.densify_stopped is None
+    s.l1_windows.append(0.05)                               # 0.09 -> 0.06: improving by 33 %
+    s._check_stop(1500, 100)
+    assert s.densify_stopped is None
+    s.l1_windows += [0.0500, 0.0499, 0.0501]                # 0.06 -> 0.05 : still 17 %
+    s._check_stop(2000, 100)
+    assert s.densify_stopped is None
+    s.l1_windows += [0.0499, 0.0498, 0.0497]                # 0.05 -> 0.0498: 0.4 % < 1 %
+    s._check_stop(2500, 100)
+    assert s.densify_stopped is not None and "stopped improving" in s.densify_stopped
+    assert s.events[-1]["event"] == "densify_stop" and s.events[-1]["iteration"] == 2500
+
+    s = _strategy(stop_rel=0.01, max_vertices=100)
+    s._check_stop(1000, 100)
+    assert "max-vertices" in s.densify_stopped
+    s = _strategy(stop_rel=0.0)
+    s.l1_windows = [0.05] * 12
+    s._check_stop(1000, 10)
+    assert s.densify_stopped is None
+
+
+def test_densify_stop_history_starts_over_at_the_hard_prune(renderer, tiny):
+    """The hard prune removes most weak triangles at once, so the L1 windows before it are not
+    compared with those after it: the history is empty right after the hard prune."""
+    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    t = Trainer(tiny, TrainConfig(iterations=300, quick=True, seed=1, **SCALED_500), renderer=renderer)
+    hard = next(i for i in range(1, 301) if t.sched.is_hard_prune_step(i))
+    while t.iteration < hard - 1:
+        t.step()
+    assert len(t.topology.l1_windows) >= 2     # windows of the earlier topology steps
+    t.step()
+    ev = [e for e in t.topology.events if e.get("event") == "topology"][-1]
+    assert ev["iteration"] == hard and ev["hard_prune"]
+    assert t.topology.l1_windows == []
