@@ -125,3 +125,14 @@ def test_ids_across_several_passes(renderer):
     assert covered.sum() > 200
     assert np.all(ids[covered] == 40_000)    # the front-most big one: weight 0.1, the rest less
     assert np.all(ids[others & ~covered] == -1)
+
+
+def test_poisoned_buffers_give_the_same_ids(renderer):
+    """Every new buffer filled with 0xFF: the ID pass relies on no zero-initialised memory."""
+    from tsplus_wgpu import Renderer
+    from tsplus_wgpu.gpu import GpuContext
+    model, cam = f32_exact(*random_scene(9, 70, 50, sheets=4, points_per_sheet=10))
+    clean = renderer.forward(model, cam, 0.3, triangle_ids=True)
+    poisoned = Renderer(GpuContext(renderer.ctx.adapter, poison=True)).forward(model, cam, 0.3, triangle_ids=True)
+    np.testing.assert_array_equal(poisoned.triangle_ids, clean.triangle_ids)
+    np.testing.assert_array_equal(poisoned.triangle_id_weights, clean.triangle_id_weights)
