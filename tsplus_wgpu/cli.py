@@ -87,6 +87,8 @@ def build_parser():
         pass
     from .viewer_cli import add_parsers as add_viewer_parsers
     add_viewer_parsers(sub)
+    from .bench_report import add_parser as add_bench_parser
+    add_bench_parser(sub)
     from .select import add_parser as add_select_parser
     add_select_parser(sub)
     try:
@@ -214,6 +216,9 @@ def main(argv=None):
         if args.command == "view":
             from .viewer_cli import run_view
             return run_view(args)
+        if args.command == "bench":
+            from .bench_report import run_bench
+            return run_bench(args)
         if args.command == "bench-viewer":
             from .viewer_cli import run_bench_viewer
             return run_bench_viewer(args)
