@@ -311,3 +311,60 @@ def test_inspect_writes_ground_truth_normals(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "wrote 8 ground-truth normal maps (png)" in r.stdout
     assert len(list((tmp_path / "n").glob("view_*.png"))) == 8
+
+
+# ---------------------------------------------------------------------- training
+
+def _train_maps(scene, maps):
+    return [nl.prepare_prior(maps[v]) if v in scene.train_indices else None for v in range(len(maps))]
+
+
+def test_training_with_normals_resumes_bit_identically(renderer, tiny, tiny_maps, tmp_path):
+    import json
+
+    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    maps = _train_maps(tiny, tiny_maps)
+    cfg = TrainConfig(iterations=24, quick=True, seed=3, log_every=5)     # topology on: the mesh changes
+    full = Trainer(tiny, cfg, renderer=renderer, normals=maps).train(out_dir=tmp_path / "a", progress=False)
+    part = Trainer(tiny, cfg, renderer=renderer, normals=maps).train(out_dir=tmp_path / "b", progress=False, until=11)
+    resumed = Trainer.resume(tmp_path / "b" / "checkpoint.npz", tiny, renderer=renderer, normals=maps)
+    resumed.train(progress=False)
+    a, b = full.state_arrays(), resumed.state_arrays()
+    assert a.keys() == b.keys()
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    plain = Trainer(tiny, cfg, renderer=renderer).train(progress=False).state_arrays()
+    assert not np.array_equal(plain["positions"], a["positions"])          # the loss did something
+    lines = [json.loads(x) for x in (tmp_path / "a" / "log.jsonl").read_text().splitlines()]
+    log = {r["iteration"]: r for r in lines if "event" not in r}
+    assert "normal_loss" not in log[1]                                     # it <= 5000 scaled (4)
+    assert all(0 < log[i]["normal_loss"] < 2 and log[i]["normal_weight"] == 0.05 for i in (5, 10, 15, 20, 24))
+    assert any(r.get("event") == "topology" for r in lines)
+
+
+def test_cli_train_with_normals(tiny, tiny_maps, tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    from tsplus_wgpu.data.normals import write_normal_maps
+    write_normal_maps(tmp_path / "n", tiny, tiny_maps, "png")
+    (tmp_path / "n" / "view_001.png").unlink()                            # a training view without a map
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "tsplus_wgpu.cli", "train", "procedural:tiny", "--preset", "quick",
+                               "--iterations", "12", "--no-progress", "--log-every", "6", *map(str, args)],
+                              capture_output=True, text=True, timeout=300)
+    r = cli("--out", tmp_path / "run", "--normals", tmp_path / "n")
+    assert r.returncode == 0, r.stderr
+    assert "normal maps: 6 of 7 training views" in r.stdout and "1 without a map" in r.stdout
+    cfg = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert cfg["normals"] == str((tmp_path / "n").resolve())
+    assert any("normal_loss" in json.loads(x) for x in (tmp_path / "run" / "log.jsonl").read_text().splitlines())
+    # resume with other normals is refused; a malformed map is a one-line error naming it
+    r = cli("--out", tmp_path / "run", "--resume", "--iterations", "12", "--normals", tmp_path)
+    assert r.returncode == 2 and "normals" in r.stderr
+    np.save(tmp_path / "n" / "view_002.npy", np.zeros((5, 5)))
+    r = cli("--out", tmp_path / "run2", "--normals", tmp_path / "n")
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "view_002.npy" in lines[0] and "[H, W, 3]" in lines[0], r.stderr

@@ -168,13 +168,17 @@ class BackwardPass:
         It depends only on the index buffer, so for a host :class:`TriangleModel` it is
         kept for the next call with the same topology, keyed on the index array's content
         (a digest, so a changed topology is never served a stale order). A model already
-        on the device has no host copy to key on: sorted every call."""
+        on the device has no host copy to key on: sorted every call, unless it carries its
+        ``corner_order`` (:class:`~tsplus_wgpu.DeviceModel`)."""
         key = None
         if isinstance(model, TriangleModel):
             idx = np.ascontiguousarray(model.triangles, dtype=np.uint32)
             key = (int(n), int(m), hashlib.blake2b(idx.tobytes(), digest_size=20).digest())
             if self._corner_cache is not None and self._corner_cache[0] == key:
                 return self._corner_cache[1], self._corner_cache[2]
+        known = getattr(model, "corner_order", None)   # a DeviceModel whose owner knows the order
+        if known is not None:
+            return known
         c = self.ctx
         keys = c.buffer(12 * m, "corner_keys")
         vals = c.upload(np.arange(3 * m, dtype=np.uint32), "corner_ids")

@@ -41,6 +41,10 @@ class DeviceModel:
         self.ctx = ctx
         self.buffers = {key: buffers[key] for key in self.KEYS}
         self._n, self._m, self._k = n, m, k
+        #: optional ``(vertex keys [3M], corner ids [3M])`` u32 buffers: the corners sorted by
+        #: vertex (stable), set by an owner that knows them (the backward pass then skips its
+        #: sort). The owner must keep it in step with ``triangles``; None: sorted every backward.
+        self.corner_order = None
 
     @classmethod
     def from_model(cls, renderer, model: TriangleModel):

@@ -22,7 +22,7 @@ def add_train_parser(sub):
                     "procedural scene, 'procedural:tiny|small|demo' to pick its size) and write to --out: "
                     "mesh.ply (opaque, vertex colours from SH DC), metrics.json (held-out PSNR/SSIM), test "
                     "renders, log.jsonl, config.json and checkpoint.npz (--resume continues it bit-identically). "
-                    "Not implemented yet: normal loss.")
+                    "--normals DIR adds method.md's optional normal loss.")
     p.add_argument("scene", nargs="?", default="procedural:small",
                    help="scene folder, or procedural[:tiny|small|demo] (default procedural:small)")
     p.add_argument("--out", required=True, help="output folder")
@@ -60,6 +60,15 @@ def add_train_parser(sub):
                    + ". Sets those config keys (hard_prune, weight_prune, sigma_decay, sigma_final, opacity), which "
                      "a --config file may also set; the ablation wins over the file. The pruning rows need "
                      "--topology on (the default)")
+    p.add_argument("--normals", default=None, metavar="DIR",
+                   help="normal-map priors: add the normal loss 0.05 (indoor 0.025) * mean(1 - <N_rendered, N_prior>) "
+                        "for iterations > 5000 (scaled with --preset quick) on the training views that have a map "
+                        "(off without --normals; views without a map get none, the count is printed). One file per "
+                        "view named like its image with .npy (float [H, W, 3], the normal) or .png (8/16-bit, "
+                        "rgb = (n + 1) / 2, alpha 0 = no prior); normals in the view's camera space, OpenCV axes "
+                        "(x right, y down, z forward), facing the camera (z mostly < 0); pixels whose normal is "
+                        "(near) zero, black or masked are ignored; other sizes are area-resized with a warning. "
+                        "`tsplus inspect procedural:tiny --write-normals DIR` writes the procedural scene's true maps")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
     from ..viewer_cli import add_train_view_args
@@ -171,19 +180,31 @@ def run_train(args):
     settings["extra"] = {**settings.get("extra", {}), "scene": str(args.scene), "downscale": args.downscale,
                          **({"ablation": args.ablation} if getattr(args, "ablation", None) else {}),
                          **({"config_file": str(args.config)} if args.config else {})}
+    if getattr(args, "normals", None):
+        settings["normals"] = str(Path(args.normals).resolve())
     cfg = TrainConfig(**settings)
+    normal_maps = None
+    if cfg.normals:
+        from ..data.normals import load_normal_maps
+        normal_maps = load_normal_maps(scene, cfg.normals)
     renderer = Renderer(args.adapter)
     out.mkdir(parents=True, exist_ok=True)
     if args.resume:
-        trainer = Trainer.resume(ckpt, scene, cfg, renderer=renderer)
+        trainer = Trainer.resume(ckpt, scene, cfg, renderer=renderer, normals=normal_maps)
     else:
-        trainer = Trainer(scene, cfg, renderer=renderer)
+        trainer = Trainer(scene, cfg, renderer=renderer, normals=normal_maps)
         (out / "log.jsonl").unlink(missing_ok=True)
     _atomic_json(out / "config.json", dict(asdict(cfg), adapter=renderer.adapter_name))
     print(f"adapter: {renderer.adapter_name}")
     print(f"scene: {args.scene} ({len(scene.train_indices)} training / {len(scene.test_indices)} held-out views, "
           f"{scene.cameras[0].width}x{scene.cameras[0].height}); model {trainer.n} vertices / {trainer.m} triangles; "
           f"from iteration {trainer.iteration} to {iterations} (loaded in {time.perf_counter() - t0:.1f}s)")
+    if normal_maps is not None:
+        from .schedules import NORMAL_LOSS_AFTER
+        print(f"{normal_maps.summary(len(scene.train_indices))}; normal loss weight "
+              f"{trainer.sched.normal_loss_weight(iterations)} from iteration {trainer.sched.at(NORMAL_LOSS_AFTER) + 1}")
+        for w in normal_maps.warnings:
+            print(f"warning: {w}")
     from ..viewer_cli import attach_live_viewer
     viewer = attach_live_viewer(trainer, args, scene)   # --view: the live window, drawn between steps
     psnr0 = None

@@ -288,6 +288,8 @@ class NormalLoss:
                     triangles=c.upload(np.arange(3 * m, dtype=np.uint32), "normal_corner_triangles"),
                     sh=c.buffer(36 * m, "normal_corner_sh"), opacity=c.buffer(12 * m, "normal_corner_opacity"))
         self.dm = DeviceModel(c, bufs, 3 * m, m, 1)
+        # corner j of the unshared model is vertex j: already sorted, the backward skips its sort
+        self.dm.corner_order = (bufs["triangles"], bufs["triangles"])
         self.grads = dict(v_positions=c.buffer(36 * m, "normal_v_corner_positions"),
                           v_sh=c.buffer(36 * m, "normal_v_corner_sh"),
                           v_opacity=c.buffer(12 * m, "normal_v_corner_opacity"))
