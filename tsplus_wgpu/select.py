@@ -285,7 +285,8 @@ def procedural_scores(model=None, size="small", objects=None, vote=0.5, renderer
     masks. ``model``: None (the ground-truth mesh drawn opaque: every triangle knows its object)
     or a trained mesh, whose triangles take the object of the ground-truth face nearest to their
     centroid. Recall counts the object's triangles that own a pixel in at least one view.
-    Returns a list of dicts (object, triangles, seen, kept, recall, precision, removed_left)."""
+    Returns a list of dicts (object, triangles, seen, kept, recall, precision, removed_left: the
+    object's seen triangles left in the scene, mask_pixels)."""
     from .cli import _demo_model
     from .data import load_procedural
     from .physics import MeshCollider
@@ -301,13 +302,14 @@ def procedural_scores(model=None, size="small", objects=None, vote=0.5, renderer
     rows = []
     for name in objects or g.object_names:
         k = g.object_names.index(name)
-        sel = select_triangles(model, scene.cameras, [m == k for m in scene.masks], vote, renderer)
+        masks = [m == k for m in scene.masks]
+        sel = select_triangles(model, scene.cameras, masks, vote, renderer)
         obj = label == k
         seen = obj & (sel.visible > 0)
         hit = int((sel.keep & obj).sum())
         rows.append(dict(object=name, triangles=int(obj.sum()), seen=int(seen.sum()), kept=sel.num_kept,
                          recall=hit / max(int(seen.sum()), 1), precision=hit / max(sel.num_kept, 1),
-                         removed_left=int((seen & ~sel.keep).sum())))
+                         removed_left=int((seen & ~sel.keep).sum()), mask_pixels=int(sum(m.sum() for m in masks))))
     return rows
 
 
@@ -336,10 +338,11 @@ def _main(argv=None):
     for row in rows:
         print(f"{row['object']:<14}{row['triangles']:>10}{row['seen']:>7}{row['kept']:>7}{row['recall']:>9.3f}"
               f"{row['precision']:>11.3f}{row['removed_left']:>6}")
-    rec = [row["recall"] for row in rows if row["seen"]]
-    prec = [row["precision"] for row in rows if row["seen"]]
+    used = [row for row in rows if row["seen"] and row["mask_pixels"]]
+    rec = [row["recall"] for row in used]
+    prec = [row["precision"] for row in used]
     print(f"mean recall {np.mean(rec):.3f} (min {np.min(rec):.3f}), mean precision {np.mean(prec):.3f} "
-          f"(min {np.min(prec):.3f}) over {len(rec)} objects seen; {dt:.1f} s")
+          f"(min {np.min(prec):.3f}) over the {len(used)} objects that some mask shows; {dt:.1f} s")
     return 0
 
 

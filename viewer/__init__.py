@@ -8,11 +8,13 @@ Shipped inside the wheel as ``tsplus_wgpu.viewer``:
   capped frame rate.
 * :mod:`.controls`: orbit / pan / zoom / fly camera math and the event mapping (no window).
 * :mod:`.font`: the HUD's bitmap font.
+* :mod:`.walk`: first-person walking with gravity and collision against the mesh (``--walk``).
 """
 
 from .app import (NO_DISPLAY_HINT, FrameRenderer, ModelSource, NoDisplayError, TrainerSource, Viewer,
                   display_problem)
 from .controls import InputController, OrbitCamera
+from .walk import WalkController, WalkInput
 
 __all__ = ["Viewer", "ModelSource", "TrainerSource", "FrameRenderer", "OrbitCamera", "InputController",
-           "NoDisplayError", "display_problem", "NO_DISPLAY_HINT"]
+           "NoDisplayError", "display_problem", "NO_DISPLAY_HINT", "WalkController", "WalkInput"]
