@@ -216,3 +216,12 @@ def test_cli_errors_are_one_line(world, tmp_path, capsys):
     assert "--scene" in err(tmp_path / "m.ply", "--masks", masks)
     assert "no such run" in err(tmp_path / "nothing", "--masks", masks)
     assert not (run / "object.ply").exists()
+
+
+def test_help(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["select", "--help"])
+    assert e.value.code == 0
+    text = capsys.readouterr().out
+    for word in ("--masks", "--vote", "--out", "--scene", "object.ply", "scene_without_object"):
+        assert word in text

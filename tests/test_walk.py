@@ -212,3 +212,27 @@ def test_viewer_walks_offscreen():
     # a live trainer has no mesh to collide with
     with pytest.raises(ValueError, match="walk"):
         W.start_walk(object(), c0)
+
+
+def test_view_help_documents_walk_keys(capsys):
+    from tsplus_wgpu.cli import main
+    with pytest.raises(SystemExit):
+        main(["view", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for words in ("--walk", "W A S D walk", "Space jump", "Shift run", "arrow keys look"):
+        assert words in text
+
+
+def test_view_walk_screenshot_headless(tmp_path, capsys):
+    """--screenshot --walk: the walker stands below camera 1 with its eye at the camera, so after
+    a second on the ground the frame is the scene camera's own."""
+    import imageio.v3 as iio
+    from tsplus_wgpu.cli import _demo_model, main
+    from tsplus_wgpu.export import export
+    export(_demo_model(0), tmp_path / "m.ply")
+    common = [str(tmp_path / "m.ply"), "--scene", "procedural:tiny", "--camera", "1"]
+    assert main(["view", *common, "--walk", "--screenshot", str(tmp_path / "walk.png")]) == 0
+    assert main(["view", *common, "--screenshot", str(tmp_path / "still.png")]) == 0
+    a, b = iio.imread(tmp_path / "walk.png"), iio.imread(tmp_path / "still.png")
+    assert a.shape == (48, 64, 3)
+    assert np.abs(a.astype(int) - b.astype(int)).max() <= 1
