@@ -193,17 +193,3 @@ def test_densify_stop_criterion():
     s._check_stop(1000, 10)
     assert s.densify_stopped is None
 
-
-def test_densify_stop_history_starts_over_at_the_hard_prune(renderer, tiny):
-    """The hard prune removes most weak triangles at once, so the L1 windows before it are not
-    compared with those after it: the history is empty right after the hard prune."""
-    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
-    t = Trainer(tiny, TrainConfig(iterations=300, quick=True, seed=1, **SCALED_500), renderer=renderer)
-    hard = next(i for i in range(1, 301) if t.sched.is_hard_prune_step(i))
-    while t.iteration < hard - 1:
-        t.step()
-    assert len(t.topology.l1_windows) >= 2     # windows of the earlier topology steps
-    t.step()
-    ev = [e for e in t.topology.events if e.get("event") == "topology"][-1]
-    assert ev["iteration"] == hard and ev["hard_prune"]
-    assert t.topology.l1_windows == []

@@ -38,14 +38,15 @@ rather than the ~3x larger step a zero second moment gives).
 
 **Densification stop** ("model only what the scene needs"): at each topology step the mean
 training L1 of the iterations since the previous topology step is appended to a history; at
-each densify step, with
-S_now the mean of the last K windows and S_prev the mean of the K before (K =
+each densify step, with S_now the mean of the last K windows and S_prev the mean of the K before (K =
 ``densify_stop_windows``, 3), densification stops for good when
 ``(S_prev - S_now) / S_prev < densify_stop_rel`` (0.01; 0 disables), or when V reached
-``max_vertices``. The reason is logged (``event: densify_stop``). The L1 history starts over at
-the hard prune: it removes most of the weak triangles at once, so the training L1 jumps and the
-windows before it measured another model (comparing across it stopped densification right after
-the hard prune, on a model that had just lost a third of its triangles).
+``max_vertices``. The reason is logged (``event: densify_stop``). Windows that
+straddle a prune count like any other: a prune raises the training L1 for a while, and the stop
+then reads it as "no better". That is deliberate, measured on procedural:small, quick, 3000
+iterations: the stop fires at iteration 554, just after the hard prune (78,697 vertices; held-out
+mesh 25.56 dB); starting the history over at the hard prune instead kept densifying to 240,209
+vertices by iteration 725 with no lower training L1 (0.0315 -> 0.0339) at a fifth of the speed.
 
 Sampling uses ``numpy.random.default_rng([seed, iteration, 1])``: stateless, so a resumed run
 draws what an uninterrupted one draws.
@@ -325,10 +326,6 @@ class TopologyStrategy:
                 drop[int(np.argmax(mw))] = False
             rec["hard_prune"] = s.is_hard_prune_step(it)
             rec["threshold"] = thr
-            if rec["hard_prune"]:
-                # the hard prune removes the bulk of the weak triangles at once: the training L1
-                # before it measured another model, so the densification stop starts over
-                self.l1_windows = []
             tris, mw = tris[~drop], mw[~drop]
         tris, old_from_new = remove_unused_vertices(tris, n)
         v = {key: arr[old_from_new] for key, arr in v.items()}
