@@ -81,7 +81,7 @@ DEFAULT_PLANS = {
     "procedural": dict(scene="procedural:small", downscale=1, iterations=300, long_factor=3, minutes=9),
     "cup": dict(downscale=8, iterations=240, long_factor=2, minutes=17),
     "chair": dict(downscale=4, iterations=300, long_factor=3, minutes=6),
-    "fox": dict(downscale=12, iterations=300, long_factor=3, minutes=6),
+    "fox": dict(downscale=12, iterations=300, long_factor=2, minutes=6),
 }
 GENERIC = dict(downscale=4, iterations=300, long_factor=2, minutes=0)
 
@@ -216,6 +216,8 @@ class Bench:
         self.fresh = fresh
         self.log = log
         self.peaks = []          # every peak FMA sample of this invocation
+        from .bench import git_commit
+        self.commit = git_commit()
 
     # ------------------------------------------------------------------ cache
     def _cached(self, scene_name, run, key_obj, fn):
@@ -231,7 +233,8 @@ class Bench:
             except Exception:
                 pass
         rec = fn()
-        rec = _clean(rec)
+        rec = _clean(dict(rec, commit=self.commit, finished=time.strftime("%Y-%m-%d %H:%M:%S"),
+                          loadavg=list(os.getloadavg())))
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(path, json.dumps(rec, indent=1) + "\n")
         rec["cached"] = False
@@ -566,6 +569,7 @@ def headline_rows(report):
             rows.append(dict(scene=s["name"], status=s.get("status")))
             continue
         res = f"{s['resolution'][0]}x{s['resolution'][1]}"
+        q = s["runs"].get("quick") or {}
         for key, label in (("quick", "quick preset"), ("long", "quick preset, longer"),
                            ("ablation-baseline", "method (topology on)")):
             r = s["runs"].get(key)
@@ -573,13 +577,16 @@ def headline_rows(report):
                 continue
             f = r["final"]
             rows.append(dict(scene=s["name"], resolution=res, run=label, iterations=r["iterations"],
-                             train_seconds=r["train_seconds"], its_per_s=r["its_per_s"], mesh_psnr=f["mesh_psnr"],
+                             train_seconds=r["train_seconds"], its_per_s=r["its_per_s"],
+                             time_vs_quick=r["train_seconds"] / q["train_seconds"] if q.get("train_seconds") else None,
+                             mesh_psnr=f["mesh_psnr"],
                              mesh_ssim=f["mesh_ssim"], soft_psnr=f["soft_psnr"], mesh_vertices=f["mesh_vertices"],
                              mesh_triangles=f["mesh_triangles"]))
         p = s.get("poisson")
         if p and "error" not in p:
             rows.append(dict(scene=s["name"], resolution=res, run=f"Poisson (depth {p['depth']})", iterations=None,
-                             train_seconds=p["seconds"], its_per_s=None, mesh_psnr=p["psnr"], mesh_ssim=p["ssim"],
+                             train_seconds=p["seconds"], its_per_s=None, time_vs_quick=None, mesh_psnr=p["psnr"],
+                             mesh_ssim=p["ssim"],
                              soft_psnr=None, mesh_vertices=p["vertices"], mesh_triangles=p["triangles"]))
     return rows
 
@@ -591,14 +598,15 @@ def _f(x, fmt="{:.2f}", none="-"):
 
 
 def headline_markdown(report):
-    lines = ["| scene | resolution | run | iterations | train s | it/s | mesh PSNR | mesh SSIM | soft PSNR | vertices "
-             "| triangles |", "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| scene | resolution | run | iterations | train s | x quick | it/s | mesh PSNR | mesh SSIM | soft PSNR "
+             "| vertices | triangles |", "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in headline_rows(report):
         if "status" in r:
-            lines.append(f"| {r['scene']} | {r['status']} | | | | | | | | | |")
+            lines.append(f"| {r['scene']} | {r['status']} | | | | | | | | | | |")
             continue
         lines.append(f"| {r['scene']} | {r['resolution']} | {r['run']} | {_f(r['iterations'], '{:d}')} | "
-                     f"{_f(r['train_seconds'], '{:.0f}')} | {_f(r['its_per_s'])} | **{_f(r['mesh_psnr'])}** | "
+                     f"{_f(r['train_seconds'], '{:.0f}')} | {_f(r['time_vs_quick'])} | {_f(r['its_per_s'])} | "
+                     f"**{_f(r['mesh_psnr'])}** | "
                      f"{_f(r['mesh_ssim'], '{:.3f}')} | {_f(r['soft_psnr'])} | {r['mesh_vertices']:,} | "
                      f"{r['mesh_triangles']:,} |")
     return "\n".join(lines)
@@ -622,6 +630,11 @@ def render_markdown(report):
          f" on {m['cpus']} CPUs" + (" — the device is a CPU driver shared with other processes: timings are contended"
                                     if m.get("is_cpu") else ""),
          ]
+    commits = sorted({r.get("commit") for s in report["scenes"] for r in s.get("runs", {}).values()
+                      if r.get("commit")} - {m["commit"]})
+    if commits:
+        L.append(f"- some runs come from the cache of an earlier invocation at commit(s) {', '.join(commits)} "
+                 f"(each run's commit is in report.json)")
     if peak:
         L.append(f"- peak FMA rate measured in this run: **{peak['median'] / 1e9:.1f} GFLOP/s** (median of "
                  f"{peak['n']} measurements, {peak['min'] / 1e9:.1f}-{peak['max'] / 1e9:.1f})")
