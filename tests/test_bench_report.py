@@ -82,3 +82,17 @@ def test_rerun_uses_cache_and_bad_scene_is_one_line(smoke, tmp_path):
     from types import SimpleNamespace
     rec = Bench(tmp_path, SimpleNamespace(ctx=None), None, progress=False).scene(plan_for(str(tmp_path / "nope")))
     assert rec["status"].startswith("error: scene did not load") and "\n" not in rec["status"]
+
+
+def test_help_and_bad_arguments(tmp_path, capsys):
+    from tsplus_wgpu.cli import main
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "--help"])
+    assert exc.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for word in ("--smoke", "--iterations", "--long-factor", "--budgets", "--fresh", "procedural", "cup", "chair",
+                 "min", "TSPLUS_DATA", "ablations"):
+        assert word in text, word
+    assert main(["bench", "--out", str(tmp_path / "o"), "--iterations", "0"]) == 2
+    assert main(["bench", "--out", str(tmp_path / "o"), "--budgets", "-1"]) == 2
+    assert "error" in capsys.readouterr().err
