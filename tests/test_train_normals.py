@@ -361,6 +361,14 @@ def test_cli_train_with_normals(tiny, tiny_maps, tmp_path):
     cfg = json.loads((tmp_path / "run" / "config.json").read_text())
     assert cfg["normals"] == str((tmp_path / "n").resolve())
     assert any("normal_loss" in json.loads(x) for x in (tmp_path / "run" / "log.jsonl").read_text().splitlines())
+    # tsplus eval --normals: the mesh's normal error on the evaluated views that have a map
+    r = subprocess.run([sys.executable, "-m", "tsplus_wgpu.cli", "eval", str(tmp_path / "run"), "procedural:tiny",
+                        "--views", "train", "--normals", str(tmp_path / "n"), "--no-splat", "--images", "0"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "normal error vs" in r.stdout and "on 6 of 7 views" in r.stdout
+    ev = json.loads((tmp_path / "run" / "eval" / "metrics.json").read_text())["normal_error"]
+    assert ev["views"] == 6 and 0 < ev["loss"] < 2 and 0 < ev["angle_deg"] < 180
     # resume with other normals is refused; a malformed map is a one-line error naming it
     r = cli("--out", tmp_path / "run", "--resume", "--iterations", "12", "--normals", tmp_path)
     assert r.returncode == 2 and "normals" in r.stderr
@@ -368,3 +376,32 @@ def test_cli_train_with_normals(tiny, tiny_maps, tmp_path):
     r = cli("--out", tmp_path / "run2", "--normals", tmp_path / "n")
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and "view_002.npy" in lines[0] and "[H, W, 3]" in lines[0], r.stderr
+
+
+#: Measured on lavapipe (llvmpipe, LLVM 15; seed 0): after 200 quick iterations on the tiny
+#: scene (topology off, the quick default) the training views' normal error mean(1 - <N, P>)
+#: of the trained model (device normal render at the final sigma) is 0.3963 without and 0.3943
+#: with the true normal maps (mean angle 48.12 -> 47.95 deg). The effect is small: with
+#: method.md's weight 0.05 the loss tilts triangles only through the positions (Adam lr <= 0.0015
+#: per step), and what it does to opacities is overridden by the floor's ramp to 0.9999.
+NORMAL_STEPS = 200
+NORMAL_GAIN = 0.001
+
+
+def test_normal_loss_lowers_the_normal_error_of_a_short_run(renderer, tiny, tiny_maps):
+    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    maps = _train_maps(tiny, tiny_maps)
+    k = nl.NormalLoss(renderer)
+    errs = {}
+    for name, normals in (("without", None), ("with", maps)):
+        cfg = TrainConfig(iterations=NORMAL_STEPS, quick=True, topology=False, background=tiny.background, log_every=0)
+        t = Trainer(tiny, cfg, renderer=renderer, normals=normals)
+        t.train(progress=False)
+        model = t.current_model()
+        e = [nl.normal_error(nl.render_normals(renderer, model, tiny.cameras[v], t.sched.sigma(t.iteration), loss=k),
+                             *maps[v]) for v in tiny.train_indices]
+        errs[name] = {key: float(np.mean([x[key] for x in e])) for key in ("loss", "angle_deg")}
+    print(f"training views' normal error after {NORMAL_STEPS} quick iterations: without normals "
+          f"{errs['without']['loss']:.4f} ({errs['without']['angle_deg']:.2f} deg), with "
+          f"{errs['with']['loss']:.4f} ({errs['with']['angle_deg']:.2f} deg)")
+    assert errs["with"]["loss"] < errs["without"]["loss"] - NORMAL_GAIN

@@ -53,6 +53,10 @@ def add_parsers(sub):
                    help="colour interpolation: perspective-correct as engines (default) or linear in screen space "
                         "as the splatting model")
     p.add_argument("--poisson-depth", type=int, default=8, help="Poisson octree depth (default 8)")
+    p.add_argument("--normals", default=None, metavar="DIR",
+                   help="also report the mesh's normal error against these normal maps (the files and convention of "
+                        "`tsplus train --normals`) on the evaluated views that have one: mean 1 - <N, P> and mean "
+                        "angle, N the mesh's camera-space normal drawn opaque (sigma 1e-4, the normal loss's render)")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
 
 
@@ -235,6 +239,30 @@ def poisson_baseline(scene, depth=8, workdir=None, trim_spacing=3.0):
 
 # ----------------------------------------------------------------------------- eval command
 
+def _normal_error(model, scene, views, folder, renderer_or_ctx):
+    """Mean normal error of ``model`` (opaque) against the maps in ``folder`` on ``views``."""
+    from .data.normals import load_normal_maps
+    from .renderer import Renderer
+    from .train.normals import NormalLoss, normal_error, render_normals
+    maps = load_normal_maps(scene, folder, views=views)
+    for w in maps.warnings:
+        print(f"warning: {w}")
+    r = renderer_or_ctx if isinstance(renderer_or_ctx, Renderer) else Renderer(renderer_or_ctx)
+    k = NormalLoss(r)
+    per = {}
+    for v in views:
+        if maps.maps[v] is not None:
+            per[int(v)] = normal_error(render_normals(r, model, scene.cameras[v], 1e-4, loss=k), *maps.maps[v])
+    if not per:
+        print(f"normal error: no normal map in {folder} for the {len(views)} evaluated views")
+        return dict(views=0)
+    out = dict(views=len(per), folder=str(folder), loss=float(np.mean([e["loss"] for e in per.values()])),
+               angle_deg=float(np.mean([e["angle_deg"] for e in per.values()])), per_view=per)
+    print(f"normal error vs {folder} on {len(per)} of {len(views)} views: mean 1 - <N, P> {out['loss']:.4f}, "
+          f"mean angle {out['angle_deg']:.2f} deg")
+    return out
+
+
 def run_eval(args):
     from .cli import UserError
     from .mesh_renderer import MeshRenderer
@@ -304,6 +332,8 @@ def run_eval(args):
     if splat is not None:
         res["mean_splat_psnr"] = float(np.mean([r["splat_psnr"] for r in rows]))
         res["splat_note"] = "trainer renderer at sigma 1e-4, opacity 1, no supersampling"
+    if getattr(args, "normals", None):
+        res["normal_error"] = _normal_error(model, scene, views, args.normals, splat or mr.ctx)
     tmp = out / f".metrics.json.tmp{os.getpid()}"
     tmp.write_text(json.dumps(res, indent=2) + "\n")
     os.replace(tmp, out / "metrics.json")

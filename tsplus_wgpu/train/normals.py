@@ -352,6 +352,22 @@ class NormalLoss:
         return loss, c.read(vp, np.float32, 3 * n).reshape(n, 3), c.read(vo, np.float32, n)
 
 
+def render_normals(renderer, model: TriangleModel, camera, sigma, near=0.01, loss=None):
+    """The alpha-blended camera-space normal image ``N [H, W, 3]`` (float64) of a
+    :class:`TriangleModel`, rendered on the device through the normal model (for metrics;
+    ``loss``: a :class:`NormalLoss` to reuse; its topology is set to the model's)."""
+    k = loss if loss is not None else NormalLoss(renderer)
+    dm = DeviceModel.from_model(renderer, model)
+    k.set_topology(model.triangles, model.num_vertices)
+    c = k.ctx
+    enc = c.device.create_command_encoder()
+    k.model_k(enc, k._params(camera, 1.0), dm.buffers["positions"], dm.buffers["triangles"], dm.buffers["opacity"],
+              k.dm.buffers["positions"], k.dm.buffers["sh"], k.dm.buffers["opacity"], k.m)
+    c.queue.submit([enc.finish()])
+    res = renderer.forward(k.dm, camera, sigma, (0.0, 0.0, 0.0), near)
+    return 2.0 * res.image.astype(np.float64) - (1.0 - res.transmittance.astype(np.float64))[..., None]
+
+
 def loss_from_render(image, transmittance, prior, valid, weight=1.0):
     """The normal loss from a normal-model render (``C``, ``T``), float64."""
     v = np.asarray(valid, bool)
@@ -363,5 +379,5 @@ def loss_from_render(image, transmittance, prior, valid, weight=1.0):
 
 __all__ = ["NormalLoss", "NormalModel", "NormalBackward", "NormalAccumulate", "prepare_prior", "normal_cotangents",
            "normal_error", "triangle_normals_reference", "normal_model_reference", "normal_render_reference",
-           "normal_loss_value_reference", "normal_loss_reference", "loss_from_render", "PRIOR_MIN_LENGTH",
+           "normal_loss_value_reference", "normal_loss_reference", "loss_from_render", "render_normals", "PRIOR_MIN_LENGTH",
            "PRIOR_MAX_LENGTH"]
