@@ -378,14 +378,17 @@ def test_cli_train_with_normals(tiny, tiny_maps, tmp_path):
     assert r.returncode == 2 and len(lines) == 1 and "view_002.npy" in lines[0] and "[H, W, 3]" in lines[0], r.stderr
 
 
-#: Measured on lavapipe (llvmpipe, LLVM 15; seed 0): after 200 quick iterations on the tiny
-#: scene (topology off, the quick default) the training views' normal error mean(1 - <N, P>)
-#: of the trained model (device normal render at the final sigma) is 0.3963 without and 0.3943
-#: with the true normal maps (mean angle 48.12 -> 47.95 deg). The effect is small: with
-#: method.md's weight 0.05 the loss tilts triangles only through the positions (Adam lr <= 0.0015
-#: per step), and what it does to opacities is overridden by the floor's ramp to 0.9999.
-NORMAL_STEPS = 200
-NORMAL_GAIN = 0.001
+#: Measured on lavapipe (llvmpipe, LLVM 15; seed 0), topology on (the quick preset's default),
+#: normal error mean(1 - <N, P>) of the exported opaque mesh (normal render at sigma 1e-4):
+#:   150 iterations: training views 0.5585 without -> 0.5463 with the true normal maps (mean angle
+#:   59.81 -> 58.88 deg), held-out view 0.5659 -> 0.5570;
+#:   300: 0.3847 -> 0.3753 (42.03 -> 41.18 deg), held-out 0.4785 -> 0.4694.
+#: With topology off the effect is smaller (200 iterations: 0.3963 -> 0.3943 on the soft model):
+#: at method.md's weight 0.05 the loss tilts triangles only through the positions (Adam lr <=
+#: 0.0015 per step), and what it does to opacities is overridden by the floor's ramp to 0.9999,
+#: except where pruning acts on it.
+NORMAL_STEPS = 150
+NORMAL_GAIN = 0.005
 
 
 def test_normal_loss_lowers_the_normal_error_of_a_short_run(renderer, tiny, tiny_maps):
@@ -394,14 +397,17 @@ def test_normal_loss_lowers_the_normal_error_of_a_short_run(renderer, tiny, tiny
     k = nl.NormalLoss(renderer)
     errs = {}
     for name, normals in (("without", None), ("with", maps)):
-        cfg = TrainConfig(iterations=NORMAL_STEPS, quick=True, topology=False, background=tiny.background, log_every=0)
+        cfg = TrainConfig(iterations=NORMAL_STEPS, quick=True, topology=True, background=tiny.background, log_every=0)
         t = Trainer(tiny, cfg, renderer=renderer, normals=normals)
         t.train(progress=False)
-        model = t.current_model()
-        e = [nl.normal_error(nl.render_normals(renderer, model, tiny.cameras[v], t.sched.sigma(t.iteration), loss=k),
-                             *maps[v]) for v in tiny.train_indices]
-        errs[name] = {key: float(np.mean([x[key] for x in e])) for key in ("loss", "angle_deg")}
-    print(f"training views' normal error after {NORMAL_STEPS} quick iterations: without normals "
-          f"{errs['without']['loss']:.4f} ({errs['without']['angle_deg']:.2f} deg), with "
-          f"{errs['with']['loss']:.4f} ({errs['with']['angle_deg']:.2f} deg)")
-    assert errs["with"]["loss"] < errs["without"]["loss"] - NORMAL_GAIN
+        mesh = Trainer.mesh_model(*t.final_mesh())
+        for split, views in (("train", tiny.train_indices), ("held-out", tiny.test_indices)):
+            e = [nl.normal_error(nl.render_normals(renderer, mesh, tiny.cameras[v], 1e-4, loss=k),
+                                 *nl.prepare_prior(tiny_maps[v])) for v in views]
+            errs[name, split] = {key: float(np.mean([x[key] for x in e])) for key in ("loss", "angle_deg")}
+    for split in ("train", "held-out"):
+        a, b = errs["without", split], errs["with", split]
+        print(f"{split} views, mesh after {NORMAL_STEPS} quick iterations: normal error without normals "
+              f"{a['loss']:.4f} ({a['angle_deg']:.2f} deg), with {b['loss']:.4f} ({b['angle_deg']:.2f} deg)")
+    assert errs["with", "train"]["loss"] < errs["without", "train"]["loss"] - NORMAL_GAIN
+    assert errs["with", "held-out"]["loss"] < errs["without", "held-out"]["loss"]
