@@ -7,6 +7,8 @@
 * :mod:`.optim` - :class:`Adam` (WGSL, one dispatch per parameter group) and :func:`adam_reference`.
 * :mod:`.kernels` - the trainer's small kernels (opacity activation, parameter gradients, v_image
   packing, early opacity loss) with float64 twins.
+* :mod:`.normals` - the optional normal loss (:class:`~.normals.NormalLoss`, WGSL, both gradient
+  paths) and its float64 twin; the priors are read by :mod:`tsplus_wgpu.data.normals`.
 * :mod:`.trainer` - :class:`~.trainer.Trainer` and :class:`~.trainer.TrainConfig`, the loop behind
   ``tsplus train`` (:mod:`.cli`). Pruning/densification during training are not implemented yet
   (see the trainer's module docstring).
