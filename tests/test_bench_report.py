@@ -78,6 +78,12 @@ def test_rerun_uses_cache_and_bad_scene_is_one_line(smoke, tmp_path):
     assert main(["bench", "--smoke", "--out", str(smoke), "--no-progress", "--no-plots"]) == 0
     rep = json.loads((smoke / "report.json").read_text())
     assert all(r["cached"] for r in rep["scenes"][0]["runs"].values())
+    # --report-only rewrites the markdown from report.json, numbers kept
+    (smoke / "report.md").unlink()
+    assert main(["bench", "--out", str(smoke), "--report-only", "--no-plots"]) == 0
+    assert json.loads((smoke / "report.json").read_text())["scenes"][0]["runs"]["quick"]["final"] == \
+        rep["scenes"][0]["runs"]["quick"]["final"]
+    assert "## Headline" in (smoke / "report.md").read_text()
     # a scene that does not load: one record, no exception
     from types import SimpleNamespace
     rec = Bench(tmp_path, SimpleNamespace(ctx=None), None, progress=False).scene(plan_for(str(tmp_path / "nope")))

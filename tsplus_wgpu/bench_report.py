@@ -13,7 +13,8 @@ trains on the device and writes ``report.md``, ``report.json`` and PNG plots to 
 * the device's **peak FMA rate** (:func:`.bench.measure_peak_flops`) measured right before the
   **forward and backward blend kernels** run on the trained model, and their fraction of it;
 * **vertices vs PSNR**: the densification plateau stop (``densify_stop_rel`` 0.01), no stop, and
-  ``--max-vertices`` budgets (fractions of the no-stop run's peak vertex count, plateau stop off);
+  ``--max-vertices`` budgets (the initial vertex count plus a fraction of the growth the no-stop run
+  reached: 0 = no densification; plateau stop off);
 * the paper's **ablations** (Tables 2-3, :mod:`.train.ablations`) measured here: change against this
   run's baseline next to the paper's change;
 * the **Poisson baseline** (:func:`.evaluate.poisson_baseline`) on the same views.
@@ -55,7 +56,7 @@ class ScenePlan:
     eval_points: int = 5             # evaluations along each curve, iteration 0 included
     test_views: int = 25             # at most this many held-out views, evenly spaced
     topology_epochs: float = 1.0     # quick_topology_epochs of the runs with topology on
-    budgets: tuple = (0.25, 0.5)     # --max-vertices budgets: fractions of the no-stop run's peak
+    budgets: tuple = (0.0, 0.25, 0.5)  # --max-vertices = V0 + f (peak - V0) of the no-stop run (V0: initial)
     profile_every: int = 10
     blend_repeats: int = 5
     peak_repeats: int = 5
@@ -65,6 +66,16 @@ class ScenePlan:
     budget_runs: bool = True
     poisson: bool = True
     minutes: float = 0.0             # the stated time of this plan on lavapipe (2 cores), for --help
+
+    def planned_iterations(self):
+        """Training iterations of every run of this plan (the overall progress bar's total)."""
+        n = int(self.iterations)
+        total = n + n * len(self.ablations)
+        if self.long and self.long_factor > 1:
+            total += n * int(self.long_factor)
+        if self.budget_runs:
+            total += n * (1 + len(self.budgets))
+        return total
 
 
 def data_dir():
@@ -216,6 +227,7 @@ class Bench:
         self.fresh = fresh
         self.log = log
         self.peaks = []          # every peak FMA sample of this invocation
+        self.overall = None      # the whole bench's progress bar (training iterations, with ETA)
         from .bench import git_commit
         self.commit = git_commit()
 
@@ -331,6 +343,7 @@ class Bench:
         views = eval_views(scene, plan.test_views)
         cfg = TrainConfig(iterations=int(iterations), quick=True, seed=0,
                           background=tuple(float(x) for x in scene.background), log_every=0, **cfg_kwargs)
+        t_run = time.perf_counter()
         t = Trainer(scene, cfg, renderer=self.renderer)
         sched = t.sched
         init = dict(vertices=t.n, triangles=t.m)
@@ -343,7 +356,7 @@ class Bench:
         if self.progress:
             from tqdm import tqdm
             bar = tqdm(total=int(iterations), desc=f"{plan.name} {label}", unit="it", dynamic_ncols=True,
-                       leave=False, file=sys.stderr)
+                       leave=False, file=sys.stderr, position=1 if self.overall is not None else 0)
         try:
             for target in eval_at:
                 if target > t.iteration:
@@ -364,6 +377,8 @@ class Bench:
                         peak_v = max(peak_v, t.n)
                         if bar is not None:
                             bar.update(1)
+                        if self.overall is not None:
+                            self.overall.update(1)
                     t.ctx.wait()
                     dt = time.perf_counter() - t0
                     train_s += dt
@@ -379,7 +394,7 @@ class Bench:
             if bar is not None:
                 bar.close()
         plain_n = int(iterations) - prof_n
-        rec = dict(label=label, iterations=int(iterations), config={k: v for k, v in asdict(cfg).items() if k != "extra"},
+        rec = dict(label=label, run_seconds=time.perf_counter() - t_run, iterations=int(iterations), config={k: v for k, v in asdict(cfg).items() if k != "extra"},
                    initial=init, points=points, final=points[-1], train_seconds=train_s,
                    its_per_s=plain_n / max(train_s - prof_s, 1e-9) if plain_n > 0 else int(iterations) / max(train_s, 1e-9),
                    its_per_s_segments=_stats(segments), profiled_iterations=prof_n, peak_vertices=peak_v,
@@ -390,6 +405,7 @@ class Bench:
             rec["stages"] = summarize_stages(stage_rows, int(iterations), t._profiler.method)
         if blend:
             rec["blend"] = self.measure_blend(t, scene, plan.blend_repeats, plan.peak_repeats)
+            rec["run_seconds"] = time.perf_counter() - t_run
         return rec
 
     # ------------------------------------------------------------------ one scene
@@ -428,6 +444,8 @@ class Bench:
         def run(name, fn, key):
             try:
                 runs[name] = self._cached(plan.name, name, dict(base_key, run=name, **key), fn)
+                if runs[name].get("cached") and self.overall is not None:
+                    self.overall.update(int(runs[name].get("iterations", 0)))
             except KeyboardInterrupt:
                 raise
             except Exception as exc:
@@ -458,14 +476,16 @@ class Bench:
                 scene, plan, f"ablation {name}", n, dict(topo, **over),
                 profile_every=plan.profile_every if name == "baseline" else 0),
                 dict(iterations=n, cfg=dict(topo, **over), profile=plan.profile_every if name == "baseline" else 0))
-        # 3. vertices vs PSNR: no stop, then budgets (fractions of the no-stop peak, plateau stop off)
+        # 3. vertices vs PSNR: no stop, then budgets V0 + f (peak - V0) (plateau stop off). Densification
+        #    starts long before the first prune, so a cap below V0 would only stop it; f = 0 is "none".
         if plan.budget_runs:
             nostop = run("densify-no-stop", lambda: self.train_run(scene, plan, "no stop", n,
                                                                    dict(topo, densify_stop_rel=0.0)),
                          dict(iterations=n, cfg=dict(topo, densify_stop_rel=0.0)))
             if nostop is not None:
+                v0 = int(nostop["initial"]["vertices"])
                 for f in plan.budgets:
-                    cap = max(3, int(round(f * nostop["peak_vertices"])))
+                    cap = max(3, int(round(v0 + f * max(0, nostop["peak_vertices"] - v0))))
                     run(f"budget-{f:g}", lambda cap=cap, f=f: self.train_run(
                         scene, plan, f"budget {cap}", n, dict(topo, densify_stop_rel=0.0, max_vertices=cap)),
                         dict(iterations=n, cfg=dict(topo, densify_stop_rel=0.0, max_vertices=cap)))
@@ -483,6 +503,9 @@ class Bench:
         rec["ablations"] = ablation_table(runs, plan.ablations, ABLATIONS, PAPER_BASELINE)
         rec["budgets"] = budget_table(runs)
         rec["seconds"] = time.perf_counter() - t0
+        # what the runs took when they were measured (cached runs included), evaluations included
+        rec["measured_seconds"] = sum(float(r.get("run_seconds") or 0.0) for r in runs.values()) + \
+            float((rec.get("poisson") or {}).get("seconds") or 0.0)
         rec["loadavg_end"] = list(os.getloadavg())
         return rec
 
@@ -612,6 +635,16 @@ def headline_markdown(report):
     return "\n".join(lines)
 
 
+def _stop_reason(reason):
+    """The log's densify_stop reason, short."""
+    if not reason:
+        return "did not stop"
+    if "relative improvement" in reason:
+        head, _, tail = reason.partition("mean over the last ")
+        return "training L1: last " + tail
+    return reason
+
+
 def _caption(report, s, iterations):
     m = report["meta"]
     return (f"adapter {m['adapter']}, {s['resolution'][0]}x{s['resolution'][1]}, {iterations} iterations, "
@@ -651,7 +684,10 @@ def render_markdown(report):
         runs = s["runs"]
         L.append(f"`{s['scene']}` downscale {s['downscale']}: {s['resolution'][0]}x{s['resolution'][1]}, "
                  f"{s['train_views']} training views, evaluated on {s['eval_note']}; {s['points']:,} initial points; "
-                 f"{s['seconds'] / 60:.1f} min; load average {s['loadavg_start'][0]:.2f} -> {s['loadavg_end'][0]:.2f}.")
+                 f"{s['seconds'] / 60:.1f} min in this invocation"
+                 + (f" (the runs took {s['measured_seconds'] / 60:.1f} min when measured)" if s.get("measured_seconds")
+                    and s["measured_seconds"] > 1.2 * s["seconds"] else "")
+                 + f"; load average {s['loadavg_start'][0]:.2f} -> {s['loadavg_end'][0]:.2f}.")
         L.append("")
         for key in ("quick", "long"):
             r = runs.get(key)
@@ -712,13 +748,16 @@ def render_markdown(report):
             L.append("")
         if s.get("budgets"):
             L += [f"**Vertices vs PSNR** (topology on, {runs.get('ablation-baseline', {}).get('iterations', '')} "
-                  f"iterations; budgets are fractions of the no-stop run's peak vertex count, plateau stop off):", "",
+                  f"iterations; --max-vertices budgets V0 + f (peak - V0) with V0 the initial and peak the no-stop "
+                  f"run's largest vertex count, plateau stop off):", "",
                   "| run | max vertices | peak vertices | mesh vertices | mesh PSNR | mesh SSIM | soft PSNR | why "
                   "densifying stopped |", "|---|---:|---:|---:|---:|---:|---:|---|"]
             for r in s["budgets"]:
                 L.append(f"| {r['label']} | {r['max_vertices']:,} | {r['peak_vertices']:,} | {r['mesh_vertices']:,} | "
                          f"{r['mesh_psnr']:.2f} | {r['mesh_ssim']:.3f} | {r['soft_psnr']:.2f} | "
-                         f"{(r['densify_stopped'] or 'did not stop')[:80]} |")
+                         f"{_stop_reason(r['densify_stopped'])}"
+                         + (" (capped by the budget)" if not r["densify_stopped"] and r["max_vertices"] < 3_000_000
+                            and r["peak_vertices"] >= 0.95 * r["max_vertices"] else "") + " |")
             p = s.get("poisson")
             if p and "error" not in p:
                 L.append(f"| Poisson baseline (depth {p['depth']}) | | | {p['vertices']:,} | {p['psnr']:.2f} | "
@@ -794,12 +833,16 @@ def add_parser(sub):
     p.add_argument("--profile-every", type=int, default=None, help="profile 1 in this many steps of the method's run "
                                                                     "(plus every topology step; default 10)")
     p.add_argument("--budgets", type=float, nargs="+", default=None,
-                   help="--max-vertices budgets as fractions of the no-stop run's peak vertex count (default 0.25 0.5)")
+                   help="--max-vertices budgets: the initial vertex count V0 plus this fraction of the growth the "
+                        "no-stop run reached, V0 + f (peak - V0); 0 = no densification (default 0 0.25 0.5)")
     p.add_argument("--no-long", action="store_true", help="skip the longer run")
     p.add_argument("--no-ablations", action="store_true", help="skip the ablations (the baseline still runs)")
     p.add_argument("--no-budgets", action="store_true", help="skip the no-stop and budget runs")
     p.add_argument("--no-poisson", action="store_true", help="skip the Poisson baseline")
     p.add_argument("--fresh", action="store_true", help="ignore cached runs in OUT/cache")
+    p.add_argument("--report-only", action="store_true",
+                   help="measure nothing: rewrite OUT/report.md and the plots from OUT/report.json (its numbers and "
+                        "metadata kept)")
     p.add_argument("--no-plots", action="store_true", help="no PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
@@ -862,8 +905,19 @@ def run_bench(args):
         v = getattr(args, key, None)
         if v is not None and v < (0 if key == "profile_every" else 1):
             raise ValueError(f"--{key.replace('_', '-')}: expected a positive integer, got {v}")
-    if args.budgets is not None and any(not 0 < f for f in args.budgets):
-        raise ValueError("--budgets: expected fractions > 0")
+    if args.budgets is not None and any(not 0 <= f for f in args.budgets):
+        raise ValueError("--budgets: expected fractions >= 0")
+    if getattr(args, "report_only", False):
+        path = out / "report.json"
+        if not path.is_file():
+            raise FileNotFoundError(f"--report-only: no {path}")
+        report = json.loads(path.read_text())
+        meta = report["meta"]
+        meta["_peaks"] = (report.get("peak") or {}).get("samples", [])
+        data = write_report(report, out, plots=not args.no_plots)
+        print(headline_markdown(data))
+        print(f"rewrote {out}/report.md" + ("" if args.no_plots else " and the plots") + " from report.json")
+        return 0
     specs = ["procedural:tiny"] if args.smoke else (list(args.scenes) or default_scenes())
     plans = [plan_for(s, args) for s in specs]
     out.mkdir(parents=True, exist_ok=True)
@@ -883,6 +937,11 @@ def run_bench(args):
     print(f"adapter: {ctx.name}; commit {meta['commit']}; scenes: {', '.join(p.name for p in plans)}", flush=True)
     bench.peak(plans[0].peak_repeats if plans else 5)
     print(f"peak FMA rate: {bench.peaks[-1]['flops_per_s'] / 1e9:.1f} GFLOP/s", flush=True)
+    if not args.no_progress:
+        from tqdm import tqdm
+        bench.overall = tqdm(total=sum(p.planned_iterations() for p in plans), desc="bench (all training runs)",
+                             unit="it", dynamic_ncols=True, file=sys.stderr, position=0)
+        bench.log = bench.overall.write
     try:
         for plan in plans:
             rec = bench.scene(plan)
@@ -897,6 +956,8 @@ def run_bench(args):
         print(f"tsplus bench: interrupted; finished runs are cached in {out}/cache (run the same command to go on)",
               file=sys.stderr)
         return 130
+    if bench.overall is not None:
+        bench.overall.close()
     bench.peak(3)
     meta.update(seconds=time.perf_counter() - t0, loadavg_end=list(os.getloadavg()))
     data = write_report(report, out, plots=not args.no_plots)
