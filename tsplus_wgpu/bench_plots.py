@@ -26,10 +26,13 @@ def _save(fig, path):
     return path.name
 
 
-def _footer(fig, report, scene, iterations):
+def _footer(fig, report, scene, iterations, runs=None):
     m = report["meta"]
     w, h = scene["resolution"]
-    fig.text(0.01, 0.005, f"adapter: {m['adapter']} | {w}x{h} | {iterations} | commit {m['commit']} | {m['date']}",
+    # the commit(s) the figure's runs were measured at (cached runs may come from an earlier one)
+    rs = [scene["runs"][k] for k in (runs or scene["runs"]) if k in scene["runs"]]
+    commit = "+".join(sorted({r["commit"] for r in rs if r.get("commit")})) or m["commit"]
+    fig.text(0.01, 0.005, f"adapter: {m['adapter']} | {w}x{h} | {iterations} | commit {commit} | {m['date']}",
              fontsize=7, color="0.35", ha="left", va="bottom")
 
 
@@ -63,7 +66,7 @@ def plot_curves(report, s, out):
     axes[0][0].legend(fontsize=7, loc="lower right")
     its = " / ".join(str(r["iterations"]) for _, r in runs)
     fig.suptitle(f"{s['name']}: held-out PSNR and SSIM vs time and iteration (quick preset)", fontsize=11)
-    _footer(fig, report, s, f"{its} iterations")
+    _footer(fig, report, s, f"{its} iterations", [k for k, _ in runs])
     fig.tight_layout(rect=(0, 0.02, 1, 1))
     name = _save(fig, Path(out) / f"{s['name']}_curves.png")
     plt.close(fig)
@@ -97,7 +100,7 @@ def plot_stages(report, s, out):
     ax.set_title(f"{s['name']}: per-stage time of a training step ({st['method']}); wall {wall:.1f} ms{extra}",
                  fontsize=9)
     ax.grid(axis="x", alpha=0.3)
-    _footer(fig, report, s, f"{base['iterations']} iterations")
+    _footer(fig, report, s, f"{base['iterations']} iterations", ["ablation-baseline", "quick"])
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     name = _save(fig, Path(out) / f"{s['name']}_stages.png")
     plt.close(fig)
@@ -127,7 +130,8 @@ def plot_vertices(report, s, out):
     ax.legend(fontsize=7)
     n = (s["runs"].get("ablation-baseline") or {}).get("iterations", "?")
     ax.set_title(f"{s['name']}: what the scene needs — vertices vs PSNR (topology on)", fontsize=10)
-    _footer(fig, report, s, f"{n} iterations")
+    _footer(fig, report, s, f"{n} iterations",
+            ["ablation-baseline", "densify-no-stop", "quick"] + [k for k in s["runs"] if k.startswith("budget-")])
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     name = _save(fig, Path(out) / f"{s['name']}_vertices.png")
     plt.close(fig)
@@ -155,7 +159,7 @@ def plot_ablations(report, s, out):
     ax.grid(axis="y", alpha=0.3)
     n = (s["runs"].get("ablation-baseline") or {}).get("iterations", "?")
     ax.set_title(f"{s['name']}: the paper's ablations (Tables 2-3) measured here", fontsize=10)
-    _footer(fig, report, s, f"{n} iterations")
+    _footer(fig, report, s, f"{n} iterations", [k for k in s["runs"] if k.startswith("ablation-")])
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     name = _save(fig, Path(out) / f"{s['name']}_ablations.png")
     plt.close(fig)

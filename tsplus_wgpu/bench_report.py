@@ -89,10 +89,10 @@ def data_dir():
 
 #: per-scene defaults (scene folder name -> plan); other folders get GENERIC with downscale 4
 DEFAULT_PLANS = {
-    "procedural": dict(scene="procedural:small", downscale=1, iterations=300, long_factor=3, minutes=9),
-    "cup": dict(downscale=8, iterations=240, long_factor=2, minutes=17),
-    "chair": dict(downscale=4, iterations=300, long_factor=3, minutes=6),
-    "fox": dict(downscale=12, iterations=300, long_factor=2, minutes=6),
+    "procedural": dict(scene="procedural:small", downscale=1, iterations=300, long_factor=3, minutes=12),
+    "cup": dict(downscale=8, iterations=240, long_factor=2, minutes=14),
+    "chair": dict(downscale=4, iterations=300, long_factor=3, minutes=5),
+    "fox": dict(downscale=12, iterations=300, long_factor=2, minutes=8),
 }
 GENERIC = dict(downscale=4, iterations=300, long_factor=2, minutes=0)
 
@@ -444,8 +444,9 @@ class Bench:
         def run(name, fn, key):
             try:
                 runs[name] = self._cached(plan.name, name, dict(base_key, run=name, **key), fn)
-                if runs[name].get("cached") and self.overall is not None:
-                    self.overall.update(int(runs[name].get("iterations", 0)))
+                if runs[name].get("cached") and self.overall is not None:   # nothing left to do: out of the ETA
+                    self.overall.total = max(self.overall.n, self.overall.total - int(runs[name].get("iterations", 0)))
+                    self.overall.refresh()
             except KeyboardInterrupt:
                 raise
             except Exception as exc:
@@ -645,10 +646,11 @@ def _stop_reason(reason):
     return reason
 
 
-def _caption(report, s, iterations):
+def _caption(report, s, iterations, runs=()):
     m = report["meta"]
+    commits = sorted({s["runs"][k]["commit"] for k in runs if s["runs"].get(k, {}).get("commit")}) or [m["commit"]]
     return (f"adapter {m['adapter']}, {s['resolution'][0]}x{s['resolution'][1]}, {iterations} iterations, "
-            f"commit {m['commit']}")
+            f"commit {'+'.join(commits)}")
 
 
 def render_markdown(report):
@@ -697,7 +699,7 @@ def render_markdown(report):
                 L += [f"{key}: failed: {r['error']}", ""]
                 continue
             seg = r.get("its_per_s_segments")
-            L += [f"**{key}** ({_caption(report, s, r['iterations'])}; {r['train_seconds']:.0f} s, "
+            L += [f"**{key}** ({_caption(report, s, r['iterations'], [key])}; {r['train_seconds']:.0f} s, "
                   f"{r['its_per_s']:.2f} it/s" + (f" [{seg['min']:.2f}-{seg['max']:.2f} over {seg['n']} segments]"
                                                    if seg else "") + "):", "",
                   "| iteration | train s | sigma | mesh PSNR | mesh SSIM | soft PSNR | soft SSIM | mesh vertices | "
@@ -713,7 +715,8 @@ def render_markdown(report):
         if b:
             ms = b["ms"]
             L += [f"**Per-stage time per iteration** (method run, topology on; {b['method']}; {b['plain_steps']} profiled "
-                  f"steps without topology edits; {_caption(report, s, runs['ablation-baseline']['iterations'])}):", "",
+                  f"steps without topology edits; "
+                  f"{_caption(report, s, runs['ablation-baseline']['iterations'], ['ablation-baseline'])}):", "",
                   "| stage | ms median | min-max | share of wall |", "|---|---:|---:|---:|"]
             wall = ms["wall"]["median"] if ms.get("wall") else None
             for k, v in ms.items():
@@ -765,7 +768,7 @@ def render_markdown(report):
             L.append("")
         if s.get("ablations"):
             base = runs.get("ablation-baseline") or {}
-            L += [f"**Ablations** ({_caption(report, s, base.get('iterations', '?'))}; topology on; change against this "
+            L += [f"**Ablations** ({_caption(report, s, base.get('iterations', '?'), [k for k in runs if k.startswith('ablation-')])}; topology on; change against this "
                   f"run's baseline beside the paper's change on Mip-NeRF360, Tables 2-3):", "",
                   "| table | ablation | mesh PSNR | Δ mesh | soft PSNR | Δ soft | paper Δ PSNR | mesh SSIM | Δ mesh SSIM "
                   "| paper Δ SSIM | vertices (x baseline) | time (x baseline) |",
@@ -807,10 +810,10 @@ def add_parser(sub):
                     "the paper's ablations (Tables 2-3) beside the paper's numbers; the Poisson baseline. Every run is "
                     "cached in OUT/cache, so an interrupted bench resumes (--fresh: start over); a scene that does not "
                     "load is one line in the report. Default scenes and sizes: " + plans + "; any other folder: "
-                    "downscale 4, 300 iterations. Each scene runs: quick, longer, 7 ablations, no-stop and 2 budget "
-                    "runs (11 trainings) plus evaluations. Times are for lavapipe on 2 idle CPU cores; "
-                    "procedural + cup + chair take about 32 min, fox about 6 more. --smoke: procedural:tiny, 16 "
-                    "iterations per run, under 2 minutes.")
+                    "downscale 4, 300 iterations. Each scene runs: quick, longer, 7 ablations, no-stop and 3 budget "
+                    "runs (12 trainings) plus evaluations. The times are measured on lavapipe with 2 CPU cores shared "
+                    "with other jobs (load average 1-5): procedural + cup + chair about 31 min, all four about 39 "
+                    "min. --smoke: procedural:tiny, 16 iterations per run, under 2 minutes (about 25-50 s).")
     p.add_argument("scenes", nargs="*", metavar="SCENE",
                    help="procedural[:tiny|small|demo], a scene folder, or the name of a folder in TSPLUS_DATA (default: "
                         "procedural and every folder in TSPLUS_DATA, currently " + ", ".join(Path(s).name for s in default_scenes()) + ")")
@@ -939,8 +942,9 @@ def run_bench(args):
     print(f"peak FMA rate: {bench.peaks[-1]['flops_per_s'] / 1e9:.1f} GFLOP/s", flush=True)
     if not args.no_progress:
         from tqdm import tqdm
+        # smoothing 0: the rate over the whole bench, evaluations included, drives the ETA
         bench.overall = tqdm(total=sum(p.planned_iterations() for p in plans), desc="bench (all training runs)",
-                             unit="it", dynamic_ncols=True, file=sys.stderr, position=0)
+                             unit="it", dynamic_ncols=True, file=sys.stderr, position=0, smoothing=0)
         bench.log = bench.overall.write
     try:
         for plan in plans:
