@@ -68,7 +68,7 @@ def plot_curves(report, s, out):
             ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7, loc="lower right")
     its = " / ".join(str(r["iterations"]) for _, r in runs)
-    fig.suptitle(f"{s['name']}: held-out PSNR and SSIM vs time and iteration (quick preset)", fontsize=11)
+    fig.suptitle(f"{s['name']}: held-out PSNR and SSIM vs time and iteration (quick preset, topology off)", fontsize=11)
     _footer(fig, report, s, f"{its} iterations", [k for k, _ in runs])
     fig.tight_layout(rect=(0, 0.02, 1, 1))
     name = _save(fig, Path(out) / f"{s['name']}_curves.png")

@@ -5,8 +5,9 @@ trains on the device and writes ``report.md``, ``report.json`` and PNG plots to 
 
 * **curves**: held-out PSNR / SSIM of the exported opaque mesh (drawn by the depth-tested
   :class:`~tsplus_wgpu.MeshRenderer`, 4x4 supersampled) and of the soft model as trained, against
-  training wall time and iteration, for the quick preset (``--preset quick`` as shipped: topology
-  off) and a run ``--long-factor`` times longer (the same preset scaled to more iterations);
+  training wall time and iteration, for the quick preset with topology off (``--preset quick
+  --topology off``: the trainer's advice for runs of a few hundred iterations; the preset's default is
+  on) and a run ``--long-factor`` times longer (the same settings scaled to more iterations);
 * **per-stage time per iteration** (:mod:`.train.profile`: projection, binning, sort, forward,
   loss, backward, gather, optimizer, topology) of the method's run (topology on), median and
   min-max over 1 in ``--profile-every`` iterations plus every topology step;
@@ -460,7 +461,7 @@ class Bench:
                      f"{f['mesh_vertices']} vertices")
             return r
 
-        # 1. curves: the quick preset as shipped (topology off) and a longer run; blend on the quick one
+        # 1. curves: the quick preset with topology off and a longer run; blend on the quick one
         pts = plan.eval_points
         run("quick", lambda: self.train_run(scene, plan, "quick", n, dict(topology=False),
                                             curve_iterations(n, pts), blend=True),
@@ -594,8 +595,8 @@ def headline_rows(report):
             continue
         res = f"{s['resolution'][0]}x{s['resolution'][1]}"
         q = s["runs"].get("quick") or {}
-        for key, label in (("quick", "quick preset"), ("long", "quick preset, longer"),
-                           ("ablation-baseline", "method (topology on)")):
+        for key, label in (("quick", "quick, topology off"), ("long", "longer, topology off"),
+                           ("ablation-baseline", "quick, topology on")):
             r = s["runs"].get(key)
             if r is None or "error" in r:
                 continue
@@ -803,7 +804,8 @@ def add_parser(sub):
                       "PSNR, the paper's ablations and the Poisson baseline in one report",
         description="Train on every SCENE and write OUT/report.md, OUT/report.json and PNG plots: held-out PSNR/SSIM "
                     "of the exported opaque mesh (mesh renderer, 4x4) and of the soft model vs training wall time and "
-                    "iteration for the quick preset (topology off, as shipped) and a longer run; per-stage time per "
+                    "iteration for the quick preset with topology off (as the trainer advises for runs this short) and "
+                    "a longer run; per-stage time per "
                     "iteration of the method's run (topology on; timestamp queries, host timing otherwise); the "
                     "device's peak FMA rate measured in the same run and the fraction the forward/backward blend "
                     "kernels reach; mesh vertices vs PSNR for the plateau stop, no stop and --max-vertices budgets; "
