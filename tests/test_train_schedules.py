@@ -155,3 +155,19 @@ def test_quick_topology_interval_and_opacity_lr():
         assert p.state(i) == FULL.state(i)
     # a short interval stays the scaled 500 when an epoch is shorter
     assert Schedule(total=3000, quick=True, views=7, topology_epochs=3).topology_every() == 50
+
+
+def test_floor_starts_at_the_hard_prune_in_stretched_quick_runs():
+    """With whole-epoch topology intervals the hard prune comes after the scaled 5000; the floor
+    must not rise before it, or the prune's opacity test (thr 0.235) can remove nothing."""
+    s = Schedule(total=1500, quick=True, views=100, topology_epochs=3)
+    hard = [i for i in range(1, 1501) if s.is_hard_prune_step(i)]
+    assert hard == [s.floor_start()] and hard[0] > s.at(5000)
+    assert s.opacity_floor(hard[0] - 1) == 0.0 and s.opacity_floor(hard[0]) == pytest.approx(0.1)
+    assert s.opacity_floor(hard[0]) < s.prune_threshold(hard[0])
+    assert s.opacity_floor(s.at(24000)) == pytest.approx(0.9999)
+    # unchanged where the interval is the scaled 500, and in the paper's run
+    q = Schedule(total=3000, quick=True)
+    assert q.floor_start() == q.at(5000) == 500
+    assert Schedule().floor_start() == 5000
+

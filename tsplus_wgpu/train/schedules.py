@@ -195,19 +195,34 @@ class Schedule:
 
     # ------------------------------------------------------------------ opacity floor
     def opacity_floor(self, it):
-        """m: 0 before iteration 5000; at 5000 + k*500 (k >= 0) it becomes
+        """m: 0 before iteration 5000 (:meth:`floor_start`); at 5000 + k*500 (k >= 0) it becomes
         ``0.1 + (0.9999 - 0.1) * clamp((it - 5000) / (24000 - 5000), 0, 1)`` and holds until the
         next update. Always 0 with ``opacity_mode="free"``."""
         it = _check_it(it)
         if self.opacity_mode == "free":
             return 0.0
-        start, every, end = self.at(FLOOR_START), self.every(FLOOR_EVERY), self.at(FLOOR_RAMP_END)
+        start, every, end = self.floor_start(), self.every(FLOOR_EVERY), self.at(FLOOR_RAMP_END)
         if it < start:
             return 0.0
         last = start + (it - start) // every * every    # the last update at or before it
         span = max(end - start, 1)
         frac = min(max((last - start) / span, 0.0), 1.0)
         return FLOOR_MIN + (FLOOR_MAX - FLOOR_MIN) * frac
+
+    def floor_start(self):
+        """The iteration the floor first rises (to 0.1): 5000, the hard prune's iteration, as in
+        method.md. In a quick run whose topology interval is stretched to whole epochs
+        (``topology_epochs``) the hard prune comes at the first prune step at or after the scaled
+        5000; the floor then starts there too. Otherwise the floor would already be above the
+        prune threshold at the hard prune, whose opacity test could then remove nothing (chair,
+        100 views, 1500 quick iterations: hard prune at 500 with the floor at 0.34 > 0.235, 0
+        triangles pruned by opacity, and opaque floaters in front of the cameras stay)."""
+        at = self.at(FLOOR_START)
+        if not self.quick or self.topology_every() == self.every(PRUNE_EVERY):
+            return at
+        after, every = self.at(self._pick(PRUNE_AFTER)), self.topology_every()
+        k = max(1, -(-(at - after) // every))
+        return max(at, after + k * every)
 
     def opacity_floor_changes(self, it):
         """True when the floor takes a new value at this iteration (re-invert the logits then)."""
@@ -244,7 +259,10 @@ class Schedule:
         return PRUNE_THRESHOLD + PRUNE_THRESHOLD_STEP * steps
 
     def prune_max_size(self):
-        """Projected size (px) above which a triangle is pruned."""
+        """Projected size (px) above which a triangle is pruned: method.md's 1400 [1300] px at
+        any image size. (Scaling it with the image diagonal was tried: at 160x120 it pruned
+        29k triangles near the cameras of the procedural room in one step and made the
+        quick-start run worse, so it is not done.)"""
         return self._pick(PRUNE_MAX_SIZE_PX)
 
     # ------------------------------------------------------------------ densification
