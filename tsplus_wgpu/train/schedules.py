@@ -262,7 +262,8 @@ class Schedule:
         """Projected size (px) above which a triangle is pruned: method.md's 1400 [1300] px at
         any image size. (Scaling it with the image diagonal was tried: at 160x120 it pruned
         29,053 triangles near the cameras of the procedural room in one step, 8,680 unscaled,
-        and doubled the quick-start run's training L1 around iteration 1075; not adopted.)"""
+        and tripled the quick-start run's mean training L1 over iterations 900-1075; not
+        adopted.)"""
         return self._pick(PRUNE_MAX_SIZE_PX)
 
     # ------------------------------------------------------------------ densification
