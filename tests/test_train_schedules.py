@@ -171,3 +171,9 @@ def test_floor_starts_at_the_hard_prune_in_stretched_quick_runs():
     assert q.floor_start() == q.at(5000) == 500
     assert Schedule().floor_start() == 5000
 
+
+
+def test_floor_still_ends_opaque_when_the_run_is_too_short_for_a_hard_prune():
+    for total in (2, 6, 12, 16, 40):
+        s = Schedule(total=total, quick=True, views=21, topology_epochs=3)
+        assert s.opacity_floor(total) == pytest.approx(0.9999), total

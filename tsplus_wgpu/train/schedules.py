@@ -222,7 +222,10 @@ class Schedule:
             return at
         after, every = self.at(self._pick(PRUNE_AFTER)), self.topology_every()
         k = max(1, -(-(at - after) // every))
-        return max(at, after + k * every)
+        hard = max(at, after + k * every)
+        # a hard prune at or after the ramp's end (runs too short for one) protects nothing:
+        # the floor then keeps method.md's start, so the run still ends opaque
+        return hard if hard < self.at(FLOOR_RAMP_END) else at
 
     def opacity_floor_changes(self, it):
         """True when the floor takes a new value at this iteration (re-invert the logits then)."""
