@@ -14,6 +14,7 @@
 // the "stopped" flag in bit 31 of y.
 #import frame
 #import triangle
+#import window4
 
 struct BlendPass {
     begin: u32,   // window of pairs [begin, end) within every tile's range
@@ -65,9 +66,6 @@ struct Px4 {
 
 // Window ratio min_k e_k at four pixels of a column: e_k = a_k + gy_k (y - s.y), with the
 // column's share a_k = 1 + gx_k (x - s.x) computed once per triangle.
-fn ratio4(dy: vec4<f32>, a: vec3<f32>, gy: vec3<f32>) -> vec4<f32> {
-    return min(min(a.x + gy.x * dy, a.y + gy.y * dy), a.z + gy.z * dy);
-}
 
 // Blend the staged triangle into the four pixels where live; returns the largest weight.
 fn blend4(q: ptr<function, Px4>, live: vec4<bool>, ratio: vec4<f32>, opacity: f32, c0: vec4<f32>,
@@ -76,7 +74,7 @@ fn blend4(q: ptr<function, Px4>, live: vec4<bool>, ratio: vec4<f32>, opacity: f3
         return 0.0;
     }
     (*q).powered += select(vec4<u32>(0u), vec4<u32>(1u), live);
-    let alpha = min(vec4<f32>(ALPHA_MAX), opacity * exp2(sigma * log2(max(ratio, vec4<f32>(1e-30)))));
+    let alpha = alpha4(ratio, opacity, sigma);
     let valid = live & (alpha >= vec4<f32>(ALPHA_MIN));
     let next_t = (*q).T * (1.0 - alpha);
     let stop = valid & (next_t < vec4<f32>(T_MIN));

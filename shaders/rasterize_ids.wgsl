@@ -13,6 +13,7 @@
 // (best triangle, best weight bits, T bits, stopped flag).
 #import frame
 #import triangle
+#import window4
 
 struct BlendPass {
     begin: u32,   // window of pairs [begin, end) within every tile's range
@@ -47,9 +48,6 @@ struct Ids4 {
     done: vec4<bool>,
 }
 
-fn ratio4(dy: vec4<f32>, a: vec3<f32>, gy: vec3<f32>) -> vec4<f32> {
-    return min(min(a.x + gy.x * dy, a.y + gy.y * dy), a.z + gy.z * dy);
-}
 
 // One triangle over four pixels (where live): the forward blend's weight and T update,
 // keeping the triangle whose weight beats the best so far.
@@ -57,7 +55,7 @@ fn visit4(q: ptr<function, Ids4>, live: vec4<bool>, ratio: vec4<f32>, opacity: f
     if (!any(live)) {
         return;
     }
-    let alpha = min(vec4<f32>(ALPHA_MAX), opacity * exp2(sigma * log2(max(ratio, vec4<f32>(1e-30)))));
+    let alpha = alpha4(ratio, opacity, sigma);
     let valid = live & (alpha >= vec4<f32>(ALPHA_MIN));
     let next_t = (*q).T * (1.0 - alpha);
     let stop = valid & (next_t < vec4<f32>(T_MIN));
