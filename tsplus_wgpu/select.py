@@ -79,7 +79,8 @@ def triangle_votes(model: TriangleModel, cameras, masks, renderer=None, sigma=ID
         raise ValueError(f"masks: expected one per camera ({len(cameras)}), got {len(masks)}")
     r = renderer or Renderer()
     m = model.num_triangles
-    opaque = opaque_model(model)
+    from .device_model import DeviceModel
+    opaque = DeviceModel.from_model(r, opaque_model(model))      # uploaded once for every view
     selected = np.zeros(m, np.int64)
     visible = np.zeros(m, np.int64)
     views = []

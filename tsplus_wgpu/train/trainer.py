@@ -647,6 +647,8 @@ class Trainer:
         fit the device) and area-downsampled. Returns (psnr, ssim, images)."""
         views = list(self.scene.test_indices or self.train_views) if views is None else list(views)
         model = self.model if model is None else model
+        if isinstance(model, TriangleModel):
+            model = DeviceModel.from_model(self.renderer, model)     # uploaded once for every view
         ps, ss, imgs = [], [], []
         for v in views:
             img = self.render(model, self.scene.cameras[v], sigma, supersample)
