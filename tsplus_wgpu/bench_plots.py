@@ -39,6 +39,16 @@ def _footer(fig, report, scene, iterations, runs=None):
              fontsize=7, color="0.35", ha="left", va="bottom")
 
 
+def _finish(plt, fig, report, scene, iterations, runs, out, kind, bottom=0.03):
+    """Footer (adapter, resolution, iterations, commit), layout, atomic save, close; returns
+    the file name of ``OUT/<scene>_<kind>.png``."""
+    _footer(fig, report, scene, iterations, runs)
+    fig.tight_layout(rect=(0, bottom, 1, 1))
+    name = _save(fig, Path(out) / f"{scene['name']}_{kind}.png")
+    plt.close(fig)
+    return name
+
+
 def plot_curves(report, s, out):
     plt = _plt()
     runs = [(k, s["runs"][k]) for k in ("quick", "long") if k in s["runs"] and "error" not in s["runs"][k]]
@@ -69,11 +79,7 @@ def plot_curves(report, s, out):
     axes[0][0].legend(fontsize=7, loc="lower right")
     its = " / ".join(str(r["iterations"]) for _, r in runs)
     fig.suptitle(f"{s['name']}: held-out PSNR and SSIM vs time and iteration (quick preset, topology off)", fontsize=11)
-    _footer(fig, report, s, f"{its} iterations", [k for k, _ in runs])
-    fig.tight_layout(rect=(0, 0.02, 1, 1))
-    name = _save(fig, Path(out) / f"{s['name']}_curves.png")
-    plt.close(fig)
-    return name
+    return _finish(plt, fig, report, s, f"{its} iterations", [k for k, _ in runs], out, "curves", bottom=0.02)
 
 
 def plot_stages(report, s, out):
@@ -103,11 +109,8 @@ def plot_stages(report, s, out):
     ax.set_title(f"{s['name']}: per-stage time of a training step ({st['method']}); wall {wall:.1f} ms{extra}",
                  fontsize=9)
     ax.grid(axis="x", alpha=0.3)
-    _footer(fig, report, s, f"{base['iterations']} iterations", ["ablation-baseline", "quick"])
-    fig.tight_layout(rect=(0, 0.03, 1, 1))
-    name = _save(fig, Path(out) / f"{s['name']}_stages.png")
-    plt.close(fig)
-    return name
+    return _finish(plt, fig, report, s, f"{base['iterations']} iterations", ["ablation-baseline", "quick"], out,
+                   "stages")
 
 
 def plot_vertices(report, s, out):
@@ -133,12 +136,9 @@ def plot_vertices(report, s, out):
     ax.legend(fontsize=7)
     n = (s["runs"].get("ablation-baseline") or {}).get("iterations", "?")
     ax.set_title(f"{s['name']}: what the scene needs — vertices vs PSNR (topology on)", fontsize=10)
-    _footer(fig, report, s, f"{n} iterations",
-            ["ablation-baseline", "densify-no-stop", "quick"] + [k for k in s["runs"] if k.startswith("budget-")])
-    fig.tight_layout(rect=(0, 0.03, 1, 1))
-    name = _save(fig, Path(out) / f"{s['name']}_vertices.png")
-    plt.close(fig)
-    return name
+    return _finish(plt, fig, report, s, f"{n} iterations",
+                   ["ablation-baseline", "densify-no-stop", "quick"] + [k for k in s["runs"] if k.startswith("budget-")],
+                   out, "vertices")
 
 
 def plot_ablations(report, s, out):
@@ -162,11 +162,8 @@ def plot_ablations(report, s, out):
     ax.grid(axis="y", alpha=0.3)
     n = (s["runs"].get("ablation-baseline") or {}).get("iterations", "?")
     ax.set_title(f"{s['name']}: the paper's ablations (Tables 2-3) measured here", fontsize=10)
-    _footer(fig, report, s, f"{n} iterations", [k for k in s["runs"] if k.startswith("ablation-")])
-    fig.tight_layout(rect=(0, 0.03, 1, 1))
-    name = _save(fig, Path(out) / f"{s['name']}_ablations.png")
-    plt.close(fig)
-    return name
+    return _finish(plt, fig, report, s, f"{n} iterations", [k for k in s["runs"] if k.startswith("ablation-")], out,
+                   "ablations")
 
 
 def make_plots(report, s, out):
