@@ -6,6 +6,8 @@ naming the offending argument, so bad data never reaches the device.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 SH_SIZES = (1, 4, 9, 16)
@@ -146,3 +148,50 @@ class TriangleModel:
 
     def __repr__(self):
         return f"TriangleModel(vertices={self.num_vertices}, triangles={self.num_triangles}, sh={self.sh_size})"
+
+
+@dataclass
+class Grads:
+    v_positions: np.ndarray  # [N, 3]
+    v_sh: np.ndarray         # [N, K, 3]
+    v_opacity: np.ndarray    # [N]
+
+
+def check_cotangents(v_image, v_transmittance, height, width):
+    """Validate the incoming gradients: finite arrays of the image's shape."""
+    vi = np.asarray(v_image, dtype=np.float64)
+    if vi.shape != (height, width, 3):
+        raise ValueError(f"v_image: expected shape [{height}, {width}, 3], got {vi.shape}")
+    if not np.all(np.isfinite(vi)):
+        raise ValueError("v_image: contains NaN or Inf")
+    if v_transmittance is None:
+        vt = np.zeros((height, width))
+    else:
+        vt = np.asarray(v_transmittance, dtype=np.float64)
+        if vt.shape != (height, width):
+            raise ValueError(f"v_transmittance: expected shape [{height}, {width}], got {vt.shape}")
+        if not np.all(np.isfinite(vt)):
+            raise ValueError("v_transmittance: contains NaN or Inf")
+    return vi, vt
+
+
+SH_C0 = 0.28209479177387814
+
+
+def check_render_args(sigma, background, near):
+    try:
+        sigma = float(sigma)
+    except Exception:
+        raise ValueError(f"sigma: expected a number, got {sigma!r}") from None
+    if not np.isfinite(sigma) or sigma <= 0:
+        raise ValueError(f"sigma: must be finite and > 0, got {sigma!r}")
+    bg = np.asarray(background, dtype=np.float64).ravel()
+    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
+        raise ValueError(f"background: expected 3 finite numbers, got {background!r}")
+    try:
+        near = float(near)
+    except Exception:
+        raise ValueError(f"near: expected a number, got {near!r}") from None
+    if not np.isfinite(near) or near < 0:
+        raise ValueError(f"near: must be finite and >= 0, got {near!r}")
+    return sigma, bg, near

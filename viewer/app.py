@@ -1,12 +1,7 @@
-"""The viewer: draws a triangle model (a file's, or a live trainer's device buffers) into a
-rendercanvas canvas (a glfw window, or an offscreen canvas for headless images).
-
-A frame: :meth:`MeshRenderer.draw` of the vertex / index buffers into an ``rgba32float``
-target (rgb = colour, a = camera z, 0 = nothing; the same pipeline :meth:`MeshRenderer.render`
-uses), or a line list pulled from the same storage buffers (wireframe), or
-:meth:`Renderer.forward` (the soft splatting render) written into that target; then a
-present pass puts it on the canvas's texture (background where nothing was drawn) with the
-HUD's text mask over the top-left corner. Built only on the public API of ``tsplus_wgpu``.
+"""The viewer window: :class:`Viewer` shows a source (:mod:`.frames`) in a rendercanvas canvas
+(a glfw window, or an offscreen canvas for headless images) with orbit / fly / walk controls,
+the HUD, screenshots and a hook that draws between training steps. Built only on the public API
+of ``tsplus_wgpu``.
 """
 
 from __future__ import annotations
@@ -19,64 +14,10 @@ import time
 import numpy as np
 import wgpu
 
-from tsplus_wgpu import Camera, DeviceModel, MeshRenderer, Renderer, TriangleModel
+from tsplus_wgpu import Camera, TriangleModel
 
 from .controls import InputController, OrbitCamera
-from .font import render_text
-
-FLOAT_FORMAT = wgpu.TextureFormat.rgba32float
-DEPTH_FORMAT = wgpu.TextureFormat.depth32float
-SH_C0 = 0.28209479177387814
-
-WIRE_WGSL = """
-struct WireParams { clip_from_world: mat4x4<f32>, sh_size: u32, _p0: u32, _p1: u32, _p2: u32, }
-@group(0) @binding(0) var<uniform> params: WireParams;
-@group(0) @binding(1) var<storage, read> positions: array<f32>;   // [N, 3]
-@group(0) @binding(2) var<storage, read> triangles: array<u32>;   // [M, 3]
-@group(0) @binding(3) var<storage, read> sh: array<f32>;          // [N, K, 3]
-struct Out { @builtin(position) clip: vec4<f32>, @location(0) color: vec3<f32>, }
-@vertex
-fn vs_main(@builtin(vertex_index) vi: u32) -> Out {
-    // line list: 3 edges per triangle, 2 ends per edge
-    let e = vi / 2u;
-    let tri = e / 3u;
-    let corner = (e % 3u + vi % 2u) % 3u;
-    let v = triangles[3u * tri + corner];
-    let p = vec3<f32>(positions[3u * v], positions[3u * v + 1u], positions[3u * v + 2u]);
-    let b = 3u * params.sh_size * v;
-    let dc = vec3<f32>(sh[b], sh[b + 1u], sh[b + 2u]);
-    var out: Out;
-    out.clip = params.clip_from_world * vec4<f32>(p, 1.0);
-    out.color = max(dc * 0.28209479177387814 + vec3<f32>(0.5), vec3<f32>(0.0));
-    return out;
-}
-@fragment
-fn fs_main(in: Out) -> @location(0) vec4<f32> { return vec4<f32>(in.color, 1.0); }
-"""
-
-PRESENT_WGSL = """
-struct PresentParams { background: vec4<f32>, hud_size: vec2<u32>, _p0: u32, _p1: u32, }
-@group(0) @binding(0) var<uniform> params: PresentParams;
-@group(0) @binding(1) var frame: texture_2d<f32>;   // rgba32float: rgb, a = z (0: nothing drawn)
-@group(0) @binding(2) var hud: texture_2d<f32>;     // r8unorm text mask
-@vertex
-fn vs_main(@builtin(vertex_index) vi: u32) -> @builtin(position) vec4<f32> {
-    let x = f32((vi << 1u) & 2u) * 2.0 - 1.0;
-    let y = f32(vi & 2u) * 2.0 - 1.0;
-    return vec4<f32>(x, y, 0.0, 1.0);
-}
-@fragment
-fn fs_main(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
-    let xy = vec2<i32>(pos.xy);
-    let f = textureLoad(frame, xy, 0);
-    var c = select(params.background.rgb, f.rgb, f.a > 0.0);
-    if (u32(xy.x) < params.hud_size.x && u32(xy.y) < params.hud_size.y) {
-        let m = textureLoad(hud, xy, 0).r;
-        c = mix(c * 0.35, vec3<f32>(1.0, 1.0, 0.85), m);
-    }
-    return vec4<f32>(clamp(c, vec3<f32>(0.0), vec3<f32>(1.0)), 1.0);
-}
-"""
+from .frames import FrameRenderer
 
 NO_DISPLAY_HINT = ("use `tsplus view RUN --screenshot out.png --camera N` for images without a display "
                    "(or run under xvfb-run)")
@@ -92,183 +33,6 @@ def display_problem():
 
 class NoDisplayError(RuntimeError):
     """No window can be opened: no display, or glfw could not start."""
-
-
-# ---------------------------------------------------------------------------- sources
-class ModelSource:
-    """A :class:`TriangleModel` uploaded once: positions f32 [N, 3], SH f32 [N, K, 3]
-    (the mesh draws its DC row), triangles u32 [M, 3]."""
-
-    def __init__(self, renderer: Renderer, model: TriangleModel, sigma=None, stats=None):
-        dev = renderer.ctx.device
-        self.renderer = renderer
-        self.model = model
-        usage = wgpu.BufferUsage.VERTEX | wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.INDEX
-
-        def up(a):
-            b = np.ascontiguousarray(a).tobytes()
-            return dev.create_buffer_with_data(data=b + bytes(-len(b) % 16 or (16 if not b else 0)), usage=usage)
-
-        self.buffers = dict(positions=up(model.positions.astype(np.float32)),
-                            sh=up(model.sh.astype(np.float32)),
-                            triangles=up(model.triangles.astype(np.uint32)))
-        self.num_vertices, self.num_triangles, self.sh_size = model.num_vertices, model.num_triangles, model.sh_size
-        self.sigma = sigma
-        self.stats = dict(stats or {})
-        self._device_model = None
-
-    @property
-    def has_splat(self):
-        """Whether the model carries splatting data (opacity below 1 or SH beyond DC)."""
-        return self.model.sh_size > 1 or bool(np.any(self.model.opacity < 1.0))
-
-    def splat_model(self):
-        if self._device_model is None:
-            self._device_model = DeviceModel.from_model(self.renderer, self.model)
-        return self._device_model
-
-    def refresh(self):
-        pass
-
-
-class TrainerSource:
-    """A live trainer's device buffers, read every frame (topology edits replace them)."""
-
-    has_splat = True
-
-    def __init__(self, trainer):
-        self.trainer = trainer
-        self.renderer = trainer.renderer
-        self.refresh()
-
-    def refresh(self):
-        t = self.trainer
-        b = t.model.buffers
-        self.buffers = dict(positions=b["positions"], sh=b["sh"], triangles=b["triangles"])
-        self.num_vertices, self.num_triangles, self.sh_size = t.model.num_vertices, t.model.num_triangles, \
-            t.model.sh_size
-        self.sigma = t.sched.sigma(max(t.iteration, 1))
-        s = t.last_stats or {}
-        self.stats = dict(iteration=t.iteration, loss=s.get("loss"), psnr=s.get("psnr"))
-
-    def splat_model(self):
-        return self.trainer.model
-
-
-# ---------------------------------------------------------------------------- frames
-class FrameRenderer:
-    """Records one frame of a source into a texture view of any colour format."""
-
-    def __init__(self, renderer: Renderer, mesh_renderer: MeshRenderer | None = None, background=(0, 0, 0)):
-        self.renderer = renderer
-        self.ctx = renderer.ctx
-        self.mesh = mesh_renderer or MeshRenderer(renderer.ctx)
-        self.background = tuple(float(x) for x in background)
-        dev = self.ctx.device
-        self._wire_module = dev.create_shader_module(code=WIRE_WGSL, label="viewer_wire")
-        self._present_module = dev.create_shader_module(code=PRESENT_WGSL, label="viewer_present")
-        self._wire = dev.create_render_pipeline(
-            layout="auto", label="viewer_wire",
-            vertex={"module": self._wire_module, "entry_point": "vs_main", "buffers": []},
-            primitive={"topology": wgpu.PrimitiveTopology.line_list},
-            fragment={"module": self._wire_module, "entry_point": "fs_main", "targets": [{"format": FLOAT_FORMAT}]})
-        self._present = {}
-        self._targets = None
-        self._hud = None      # (texture, w, h, key)
-        self._hud_size = (0, 0)
-
-    def _present_pipeline(self, fmt):
-        if fmt not in self._present:
-            dev = self.ctx.device
-            self._present[fmt] = dev.create_render_pipeline(
-                layout="auto", label="viewer_present",
-                vertex={"module": self._present_module, "entry_point": "vs_main", "buffers": []},
-                primitive={"topology": wgpu.PrimitiveTopology.triangle_list},
-                fragment={"module": self._present_module, "entry_point": "fs_main", "targets": [{"format": fmt}]})
-        return self._present[fmt]
-
-    def _frame_targets(self, w, h):
-        if self._targets is None or self._targets[0] != (w, h):
-            dev = self.ctx.device
-            color = dev.create_texture(size=(w, h, 1), format=FLOAT_FORMAT,
-                                       usage=wgpu.TextureUsage.RENDER_ATTACHMENT | wgpu.TextureUsage.TEXTURE_BINDING
-                                       | wgpu.TextureUsage.COPY_DST)
-            depth = dev.create_texture(size=(w, h, 1), format=DEPTH_FORMAT, usage=wgpu.TextureUsage.RENDER_ATTACHMENT)
-            self._targets = ((w, h), color, color.create_view(), depth.create_view())
-        return self._targets[1:]
-
-    def set_hud(self, lines, scale=2):
-        """Text lines for the HUD (None or [] hides it)."""
-        if not lines:
-            self._hud_size = (0, 0)
-            return
-        mask = render_text(lines, scale)
-        h, w = mask.shape
-        dev = self.ctx.device
-        if self._hud is None or self._hud[1] < w or self._hud[2] < h:
-            tw, th = max(w, 256), max(h, 64)
-            tex = dev.create_texture(size=(tw, th, 1), format=wgpu.TextureFormat.r8unorm,
-                                     usage=wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST)
-            self._hud = (tex, tw, th)
-        self.ctx.queue.write_texture({"texture": self._hud[0], "mip_level": 0, "origin": (0, 0, 0)},
-                                     np.ascontiguousarray(mask), {"offset": 0, "bytes_per_row": w, "rows_per_image": h},
-                                     (w, h, 1))
-        self._hud_size = (w, h)
-
-    def record(self, encoder, target_view, target_format, camera: Camera, source, mode="mesh", near=0.01):
-        """Record the frame of ``source`` seen by ``camera`` into ``target_view``.
-        ``mode``: ``"mesh"`` (opaque, depth-tested), ``"wire"`` or ``"splat"``."""
-        dev = self.ctx.device
-        color, color_view, depth_view = self._frame_targets(camera.width, camera.height)
-        b = source.buffers
-        if mode == "splat" and source.has_splat:
-            img = self.renderer.forward(source.splat_model(), camera, source.sigma, self.background, near).image
-            rgba = np.concatenate([img, np.ones(img.shape[:2] + (1,), np.float32)], axis=2)
-            self.ctx.queue.write_texture({"texture": color, "mip_level": 0, "origin": (0, 0, 0)},
-                                         np.ascontiguousarray(rgba, np.float32),
-                                         {"offset": 0, "bytes_per_row": 16 * camera.width,
-                                          "rows_per_image": camera.height}, (camera.width, camera.height, 1))
-        elif mode == "wire":
-            params = np.zeros(20, np.float32)
-            from tsplus_wgpu.mesh_renderer import clip_from_camera
-            params[:16] = (clip_from_camera(camera, near) @ camera.world_to_camera).T.ravel()
-            params[16:17].view(np.uint32)[0] = source.sh_size
-            ubuf = dev.create_buffer_with_data(data=params.tobytes() + bytes(12), usage=wgpu.BufferUsage.UNIFORM)
-            bind = dev.create_bind_group(layout=self._wire.get_bind_group_layout(0), entries=[
-                {"binding": 0, "resource": {"buffer": ubuf}},
-                {"binding": 1, "resource": {"buffer": b["positions"]}},
-                {"binding": 2, "resource": {"buffer": b["triangles"]}},
-                {"binding": 3, "resource": {"buffer": b["sh"]}}])
-            rp = encoder.begin_render_pass(color_attachments=[{
-                "view": color_view, "clear_value": (0.0, 0.0, 0.0, 0.0), "load_op": wgpu.LoadOp.clear,
-                "store_op": wgpu.StoreOp.store}])
-            if source.num_triangles:
-                rp.set_pipeline(self._wire)
-                rp.set_bind_group(0, bind)
-                rp.draw(6 * source.num_triangles)
-            rp.end()
-        else:
-            self.mesh.draw(encoder, color_view, depth_view, camera, b["positions"], b["sh"], b["triangles"],
-                           source.num_triangles, sh_size=source.sh_size, near=near)
-        if self._hud is None:
-            self.set_hud(["."])
-            self._hud_size = (0, 0)
-        pp = np.zeros(8, np.float32)
-        pp[:3] = self.background
-        pp[4:6].view(np.uint32)[:] = self._hud_size
-        ubuf = dev.create_buffer_with_data(data=pp.tobytes(), usage=wgpu.BufferUsage.UNIFORM)
-        pipe = self._present_pipeline(target_format)
-        bind = dev.create_bind_group(layout=pipe.get_bind_group_layout(0), entries=[
-            {"binding": 0, "resource": {"buffer": ubuf}},
-            {"binding": 1, "resource": color_view},
-            {"binding": 2, "resource": self._hud[0].create_view()}])
-        rp = encoder.begin_render_pass(color_attachments=[{
-            "view": target_view, "clear_value": (0.0, 0.0, 0.0, 1.0), "load_op": wgpu.LoadOp.clear,
-            "store_op": wgpu.StoreOp.store}])
-        rp.set_pipeline(pipe)
-        rp.set_bind_group(0, bind)
-        rp.draw(3)
-        rp.end()
 
 
 # ---------------------------------------------------------------------------- the viewer
@@ -312,6 +76,7 @@ class Viewer:
         if camera_index is not None:
             self.snap(camera_index)
         self._frame_times = []
+        self.frames_drawn = 0             # frames drawn since the start (benchmarks, tests)
         self._last_frame = None
         self._capture = None
         self._hud_lines, self._hud_time = None, -math.inf
@@ -526,12 +291,14 @@ class Viewer:
         if self.offscreen:
             img = self.canvas.draw()
             self._frame_times.append(time.perf_counter())
+            self.frames_drawn += 1
             img = np.asarray(img)
             if self._capture is not None:
                 self._store_capture(img)
             return np.ascontiguousarray(img[..., :3])
         self.canvas.force_draw()
         self._frame_times.append(time.perf_counter())
+        self.frames_drawn += 1
         del self._frame_times[:-64]
         if capture:
             return self.last_image

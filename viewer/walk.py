@@ -21,8 +21,7 @@ import math
 
 import numpy as np
 
-from tsplus_wgpu import Camera
-from tsplus_wgpu.physics import MeshCollider
+from tsplus_wgpu import Camera, MeshCollider
 
 def _unit(v):
     v = np.asarray(v, np.float64)

@@ -36,8 +36,10 @@ const BIN_MARGIN: f32 = 1e-5;
 
 // lavapipe (Mesa's llvmpipe) ends every loop after 65535 iterations in total per
 // invocation, silently. Every kernel bounds its per-invocation work well below that:
-// binning works per (triangle, tile row), the blend runs in passes of at most
-// 32768 pairs per tile (tsplus_wgpu.stages.BLEND_PASS_PAIRS).
+// binning works per (triangle, tile row) over at most MAX_TILES_PER_ROW tiles (the host
+// refuses wider images), the blend runs in passes of at most PASS_PAIRS pairs per tile
+// (rasterize_forward.wgsl).
+const MAX_TILES_PER_ROW: u32 = 16384u;
 
 fn world_to_camera(p: FrameParams, x: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(dot(p.rot0.xyz, x) + p.rot0.w,

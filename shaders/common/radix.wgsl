@@ -7,7 +7,8 @@ struct SortParams {
     _pad0: u32,
 }
 
-const RADIX: u32 = 16u;
+const RADIX_BITS: u32 = 4u;                     // bits sorted per pass
+const RADIX: u32 = 1u << RADIX_BITS;             // digits per pass
 const SORT_THREADS: u32 = 128u;
-const SORT_ITEMS: u32 = 16u;
-const SORT_BLOCK: u32 = 2048u;
+const SORT_ITEMS: u32 = 16u;                     // a multiple of 4: keys are read as vec4
+const SORT_BLOCK: u32 = SORT_THREADS * SORT_ITEMS;

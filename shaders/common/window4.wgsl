@@ -1,6 +1,6 @@
-// The forward blend's per-pixel window and alpha for four pixels of a column at once, shared
-// by rasterize_forward (the image) and rasterize_ids (the triangle-ID buffer) so that the two
-// make the same decisions bit for bit. Needs frame.wgsl (ALPHA_MAX).
+// The forward blend's per-pixel window and alpha for four pixels of a column at once, used by
+// both variants of rasterize_forward (the image, and with TRIANGLE_IDS the triangle-ID buffer)
+// so that the two make the same decisions bit for bit. Needs frame.wgsl (ALPHA_MAX).
 
 // min_k of the edge ratios L_k / phi(s) at four pixels dy rows below the staged origin: the
 // window's base max(0, .) before the power (a = value at the origin, gy = per-row step).

@@ -101,22 +101,7 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
     Raises:
         SceneError: any problem with the user's data, as one line naming the file and the fix.
     """
-    from .colmap import colmap_frames, find_model_dir  # noqa: PLC0415
-    from .llff import llff_frames  # noqa: PLC0415
-    from .sfm import cache_root, frusta_points, photo_names, run_photos_sfm, triangulate_known_poses  # noqa: PLC0415
-    from .transforms import find_transforms, transforms_frames  # noqa: PLC0415
-
-    if points not in ("auto", "triangulate", "frusta", "none"):
-        raise SceneError(f"points {points!r}: expected 'auto', 'triangulate', 'frusta' or 'none'")
-    if on_bad_image not in ("skip", "error"):
-        raise SceneError(f"on_bad_image {on_bad_image!r}: expected 'skip' or 'error'")
-    try:
-        downscale = float(downscale)
-    except (TypeError, ValueError):
-        raise SceneError(f"downscale {downscale!r}: expected a number >= 1") from None
-    if not np.isfinite(downscale) or downscale < 1:
-        raise SceneError(f"downscale {downscale!r}: expected a number >= 1")
-
+    downscale = _check_options(points, on_bad_image, downscale)
     if path is None or str(path).split(":")[0] == "procedural":
         from .procedural import load_procedural  # noqa: PLC0415
         size = str(path).split(":", 1)[1] if path is not None and ":" in str(path) else "small"
@@ -125,52 +110,9 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
             sc.warnings.append("downscale/background are ignored for the procedural scene; pick a size instead")
         return sc
 
-    root = Path(path).expanduser()
-    if not root.exists():
-        raise SceneError(f"{root}: no such file or folder; check the path")
-    if root.is_file():
-        if root.name.endswith(".json") or root.name == "poses_bounds.npy":
-            root = root.parent
-        else:
-            raise SceneError(f"{root}: not a scene folder; pass the folder holding the images and cameras")
-    if not root.is_dir():
-        raise SceneError(f"{root}: not a folder; pass the scene folder")
+    root = _scene_root(path)
     warnings: list = []
-    pts = cols = bounds = None
-    models: dict = {}
-    model_dir = find_model_dir(root)
-    t_files, t_variant = find_transforms(root)
-    photo_dir = None
-    if model_dir is not None:
-        fmt = "colmap"
-        image_dir, rest = _image_dir(root, images, downscale)
-        if not image_dir.is_dir():
-            raise SceneError(f"{image_dir}: image folder of the COLMAP model not found; put the images there "
-                             "or pass --images FOLDER")
-        frame_specs, pts, cols, models, _ = colmap_frames(root, model_dir, image_dir, warnings)
-    elif t_files:
-        fmt = t_variant
-        rest = downscale
-        frame_specs, models = transforms_frames(root, t_files, t_variant, warnings)
-    elif (root / "poses_bounds.npy").is_file():
-        fmt = "llff"
-        image_dir, rest = _image_dir(root, images, downscale)
-        frame_specs, bounds = llff_frames(root, image_dir, warnings)
-        models = {"PINHOLE": len(frame_specs)}
-    else:
-        photo_dir = root / images if images is not None else (root / "images" if list_images(root / "images") else root)
-        names = photo_names(photo_dir) if photo_dir.is_dir() else []
-        if not names:
-            if not any(root.iterdir()):
-                raise SceneError(f"{root}: the folder is empty; put photos (or a COLMAP / transforms.json / "
-                                 "LLFF scene) in it")
-            raise SceneError(f"{root}: no images and no camera model found (expected COLMAP sparse/, "
-                             "transforms.json, poses_bounds.npy or photos); point to a scene folder")
-        fmt = "photos"
-        model_dir = run_photos_sfm(photo_dir, names, cache=cache_dir, progress=progress, warnings=warnings)
-        image_dir, rest = photo_dir, downscale
-        frame_specs, pts, cols, models, _ = colmap_frames(root, model_dir, image_dir, warnings)
-
+    fmt, frame_specs, rest, pts, cols, bounds = _read_format(root, images, downscale, cache_dir, progress, warnings)
     bg = _parse_background(background, (1.0, 1.0, 1.0) if fmt == "nerf-synthetic" else (0.0, 0.0, 0.0))
     is_test = [f.is_test for f in frame_specs]
     train_all, test_all, rule = make_split(len(frame_specs), split, is_test if fmt == "nerf-synthetic" else None)
@@ -191,31 +133,125 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
         pts = cols = None
         source = "none"
     elif pts is None or points in ("triangulate", "frusta"):
-        use = train_idx if len(train_idx) >= 2 else list(range(len(cameras)))
-        tri_cams = [cameras[i] for i in use]
-        tri_imgs = [imgs[i] for i in use]
-        done = False
-        if points != "frusta" and len(use) >= 2:
-            croot, note = cache_root(root, cache_dir)
-            if note:
-                warnings.append(note)
-            try:
-                pts, cols, info = triangulate_known_poses(tri_cams, tri_imgs, [names[i] for i in use], croot,
-                                                          progress=progress)
-                source = "triangulated"
-                done = True
-                warnings.append(f"initial points triangulated with pycolmap from {len(use)} posed images "
-                                f"(mean reprojection error {info['mean_reprojection_error']:.2f} px)")
-            except RuntimeError as exc:
-                warnings.append(f"{exc}: initial points made from the camera frusta instead")
-        if not done:
-            pts, cols = frusta_points(cameras, imgs, bounds=bounds, seed=seed)
-            source = "frusta"
-            if points == "frusta":
-                warnings.append("initial points made from the camera frusta (as asked)")
+        pts, cols, source = _initial_points(points, cameras, imgs, names, train_idx, bounds, root, cache_dir,
+                                            progress, seed, warnings)
     if pts is not None and max_points is not None and len(pts) > int(max_points):
         keep = np.sort(np.random.default_rng(seed).choice(len(pts), int(max_points), replace=False))
         pts, cols = pts[keep], cols[keep]
     return Scene(format=fmt, cameras=cameras, images=imgs, image_names=names, points=pts, point_colors=cols,
                  points_source=source, train_indices=train_idx, test_indices=test_idx, warnings=warnings,
                  root=str(root), background=bg, skipped=skipped, camera_models=models, split_rule=rule)
+
+
+def _check_options(points, on_bad_image, downscale):
+    """Check :func:`load_scene`'s options; returns ``downscale`` as a float."""
+    if points not in ("auto", "triangulate", "frusta", "none"):
+        raise SceneError(f"points {points!r}: expected 'auto', 'triangulate', 'frusta' or 'none'")
+    if on_bad_image not in ("skip", "error"):
+        raise SceneError(f"on_bad_image {on_bad_image!r}: expected 'skip' or 'error'")
+    try:
+        downscale = float(downscale)
+    except (TypeError, ValueError):
+        raise SceneError(f"downscale {downscale!r}: expected a number >= 1") from None
+    if not np.isfinite(downscale) or downscale < 1:
+        raise SceneError(f"downscale {downscale!r}: expected a number >= 1")
+    return downscale
+
+
+def _scene_root(path) -> Path:
+    """The scene folder ``path`` names (a folder, or its transforms .json / poses_bounds.npy)."""
+    root = Path(path).expanduser()
+    if not root.exists():
+        raise SceneError(f"{root}: no such file or folder; check the path")
+    if root.is_file():
+        if root.name.endswith(".json") or root.name == "poses_bounds.npy":
+            root = root.parent
+        else:
+            raise SceneError(f"{root}: not a scene folder; pass the folder holding the images and cameras")
+    if not root.is_dir():
+        raise SceneError(f"{root}: not a folder; pass the scene folder")
+    return root
+
+
+def _read_format(root, images, downscale, cache_dir, progress, warnings):
+    """Detect the format of ``root`` and read its frames: ``(format, frame specs, remaining
+    downscale, SfM points or None, their colours, LLFF depth bounds or None)``; a folder of
+    photos runs SfM (cached) first."""
+    from .colmap import colmap_frames, find_model_dir  # noqa: PLC0415
+    from .llff import llff_frames  # noqa: PLC0415
+    from .sfm import photo_names, run_photos_sfm  # noqa: PLC0415
+    from .transforms import find_transforms, transforms_frames  # noqa: PLC0415
+    pts = cols = bounds = None
+    model_dir = find_model_dir(root)
+    t_files, t_variant = find_transforms(root)
+    if model_dir is not None:
+        fmt = "colmap"
+        image_dir, rest = _image_dir(root, images, downscale)
+        if not image_dir.is_dir():
+            raise SceneError(f"{image_dir}: image folder of the COLMAP model not found; put the images there "
+                             "or pass --images FOLDER")
+        frame_specs, pts, cols, _, _ = colmap_frames(root, model_dir, image_dir, warnings)
+    elif t_files:
+        fmt = t_variant
+        rest = downscale
+        frame_specs, _ = transforms_frames(root, t_files, t_variant, warnings)
+    elif (root / "poses_bounds.npy").is_file():
+        fmt = "llff"
+        image_dir, rest = _image_dir(root, images, downscale)
+        frame_specs, bounds = llff_frames(root, image_dir, warnings)
+    else:
+        photo_dir = root / images if images is not None else (root / "images" if list_images(root / "images") else root)
+        names = photo_names(photo_dir) if photo_dir.is_dir() else []
+        if not names:
+            if not any(root.iterdir()):
+                raise SceneError(f"{root}: the folder is empty; put photos (or a COLMAP / transforms.json / "
+                                 "LLFF scene) in it")
+            raise SceneError(f"{root}: no images and no camera model found (expected COLMAP sparse/, "
+                             "transforms.json, poses_bounds.npy or photos); point to a scene folder")
+        fmt = "photos"
+        model_dir = run_photos_sfm(photo_dir, names, cache=cache_dir, progress=progress, warnings=warnings)
+        rest = downscale
+        frame_specs, pts, cols, _, _ = colmap_frames(root, model_dir, photo_dir, warnings)
+    return fmt, frame_specs, rest, pts, cols, bounds
+
+
+def _initial_points(points, cameras, imgs, names, train_idx, bounds, root, cache_dir, progress, seed, warnings):
+    """Initial points without SfM ones (or when asked): triangulated with pycolmap from the
+    posed training images, else made from the camera frusta. Returns ``(points, colours, source)``."""
+    from .sfm import cache_root, frusta_points, triangulate_known_poses  # noqa: PLC0415
+    use = train_idx if len(train_idx) >= 2 else list(range(len(cameras)))
+    if points != "frusta" and len(use) >= 2:
+        croot, note = cache_root(root, cache_dir)
+        if note:
+            warnings.append(note)
+        try:
+            pts, cols, info = triangulate_known_poses([cameras[i] for i in use], [imgs[i] for i in use],
+                                                      [names[i] for i in use], croot, progress=progress)
+            warnings.append(f"initial points triangulated with pycolmap from {len(use)} posed images "
+                            f"(mean reprojection error {info['mean_reprojection_error']:.2f} px)")
+            return pts, cols, "triangulated"
+        except RuntimeError as exc:
+            warnings.append(f"{exc}: initial points made from the camera frusta instead")
+    pts, cols = frusta_points(cameras, imgs, bounds=bounds, seed=seed)
+    if points == "frusta":
+        warnings.append("initial points made from the camera frusta (as asked)")
+    return pts, cols, "frusta"
+
+
+def load_scene_arg(scene_arg, downscale=1, seed=0) -> Scene:
+    """The scene a command-line argument names: ``procedural[:tiny|small|demo]`` (default size
+    small; None means ``procedural:small``) or a scene folder / file for :func:`load_scene`.
+
+    Raises:
+        ValueError: a ``downscale`` other than 1 for the procedural scene.
+        FileNotFoundError: the path does not exist.
+    """
+    from .procedural import load_procedural
+    if scene_arg is None or scene_arg.startswith("procedural"):
+        size = scene_arg.split(":", 1)[1] if scene_arg and ":" in scene_arg else "small"
+        if downscale != 1:
+            raise ValueError("--downscale: the procedural scene has fixed sizes; use procedural:tiny|small|demo")
+        return load_procedural(size, seed=0)
+    if not Path(scene_arg).exists():
+        raise FileNotFoundError(f"scene {scene_arg}: no such file or folder")
+    return load_scene(scene_arg, downscale=downscale, seed=seed)

@@ -27,6 +27,27 @@ import numpy as np
 from .errors import SceneError
 
 NORMAL_EXTENSIONS = (".npy", ".png")
+#: A prior pixel is used when its decoded normal's length is in this range (then normalised):
+#: grey (128,128,128) = the zero vector, black = (-1,-1,-1) of length 1.73 and NaN are left out.
+PRIOR_MIN_LENGTH = 0.5
+PRIOR_MAX_LENGTH = 1.5
+
+
+def prepare_prior(normals, alpha=None):
+    """A raw normal map ``[H, W, 3]`` (decoded to [-1, 1]) -> ``(unit prior [H, W, 3] float32,
+    valid [H, W] bool)``: pixels whose length is outside [0.5, 1.5], not finite, or whose
+    ``alpha`` (optional ``[H, W]``) is 0 are invalid (prior 0 there)."""
+    n = np.asarray(normals, np.float64)
+    if n.ndim != 3 or n.shape[2] != 3:
+        raise ValueError(f"normal map: expected shape [H, W, 3], got {n.shape}")
+    finite = np.all(np.isfinite(n), axis=2)
+    n = np.where(finite[..., None], n, 0.0)
+    length = np.linalg.norm(n, axis=2)
+    valid = finite & (length >= PRIOR_MIN_LENGTH) & (length <= PRIOR_MAX_LENGTH)
+    if alpha is not None:
+        valid &= np.asarray(alpha) > 0
+    unit = np.where(valid[..., None], n / np.where(valid, length, 1.0)[..., None], 0.0)
+    return unit.astype(np.float32), valid
 
 
 @dataclass
@@ -140,7 +161,6 @@ def find_normal_file(folder, image_name):
 
 def load_normal_map(path, camera):
     """One view's prior at ``camera``'s size: ``(prior, valid, warnings)``."""
-    from ..train.normals import prepare_prior
     raw, alpha = read_normal_file(path)
     prior, valid = prepare_prior(raw, alpha)
     warnings = []

@@ -16,13 +16,11 @@ import json
 import os
 import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from ..types import Camera
 from .errors import SceneError
 from .images import IMAGE_EXTENSIONS, read_image_size, write_image
 
@@ -225,6 +223,43 @@ def _neighbour_pairs(cameras: list, names: list, k: int = 12):
     return [(names[a], names[b]) for a, b in sorted(pairs)]
 
 
+def _posed_key(cameras, images, names):
+    """Cache key of a triangulation: the names, cameras and a sparse sample of the pixels."""
+    h = hashlib.sha1()
+    for cam, img, n in zip(cameras, images, names):
+        h.update(n.encode())
+        h.update(np.round(np.array([cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy]), 4).tobytes())
+        h.update(np.round(cam.world_to_camera, 6).tobytes())
+        h.update(np.ascontiguousarray(img[::17, ::13]).tobytes())
+    return h.hexdigest()[:16]
+
+
+def _posed_reconstruction(pycolmap, db, cameras, safe):
+    """A pycolmap Reconstruction of the images in the database ``db`` (file names ``safe``)
+    with the known cameras and poses fixed and their keypoints, no points yet."""
+    rec = pycolmap.Reconstruction()
+    with pycolmap.Database.open(db) as database:
+        db_images = {im.name: im for im in database.read_all_images()}
+        for i, s in enumerate(safe):
+            if s not in db_images:
+                continue
+            dbim = db_images[s]
+            cam = cameras[i]
+            dbcam = database.read_camera(dbim.camera_id)
+            # the database camera may be at a reduced size (max_image_size) -> use the file size
+            pc = pycolmap.Camera.create_from_model_name(dbim.camera_id, "PINHOLE", cam.fx, cam.width, cam.height)
+            pc.params = [cam.fx, cam.fy, cam.cx, cam.cy]
+            if (dbcam.width, dbcam.height) != (cam.width, cam.height):
+                pc.rescale(int(dbcam.width), int(dbcam.height))
+            database.update_camera(pc)
+            rec.add_camera_with_trivial_rig(pc)
+            im = pycolmap.Image(name=s, camera_id=dbim.camera_id, image_id=dbim.image_id)
+            im.points2D = pycolmap.Point2DList(
+                [pycolmap.Point2D(xy) for xy in database.read_keypoints(dbim.image_id)[:, :2]])
+            rec.add_image_with_trivial_frame(im, pycolmap.Rigid3d(cam.world_to_camera[:3, :4]))
+    return rec
+
+
 def triangulate_known_poses(cameras: list, images: list, names: list, cache_dir: Path,
                             progress: bool = True, max_image_size: int = 1600, exhaustive_max: int = 30):
     """Triangulate points from the loaded (pinhole, undistorted) images and fixed known poses.
@@ -241,13 +276,7 @@ def triangulate_known_poses(cameras: list, images: list, names: list, cache_dir:
     """
     pycolmap = _pycolmap()
     pycolmap.set_random_seed(0)
-    h = hashlib.sha1()
-    for cam, img, n in zip(cameras, images, names):
-        h.update(n.encode())
-        h.update(np.round(np.array([cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy]), 4).tobytes())
-        h.update(np.round(cam.world_to_camera, 6).tobytes())
-        h.update(np.ascontiguousarray(img[::17, ::13]).tobytes())
-    work = Path(cache_dir) / f"tri_{h.hexdigest()[:16]}"
+    work = Path(cache_dir) / f"tri_{_posed_key(cameras, images, names)}"
     result = work / "points.npz"
     if result.is_file():
         z = np.load(result)
@@ -268,26 +297,7 @@ def triangulate_known_poses(cameras: list, images: list, names: list, cache_dir:
                            pairs=pairs, max_image_size=max_image_size, progress=prog,
                            small_images=max(cameras[0].width, cameras[0].height) < 1200)
         prog.stage("triangulating")
-        rec = pycolmap.Reconstruction()
-        with pycolmap.Database.open(db) as database:
-            db_images = {im.name: im for im in database.read_all_images()}
-            for i, s in enumerate(safe):
-                if s not in db_images:
-                    continue
-                dbim = db_images[s]
-                cam = cameras[i]
-                dbcam = database.read_camera(dbim.camera_id)
-                # the database camera may be at a reduced size (max_image_size) -> use the file size
-                pc = pycolmap.Camera.create_from_model_name(dbim.camera_id, "PINHOLE", cam.fx, cam.width, cam.height)
-                pc.params = [cam.fx, cam.fy, cam.cx, cam.cy]
-                if (dbcam.width, dbcam.height) != (cam.width, cam.height):
-                    pc.rescale(int(dbcam.width), int(dbcam.height))
-                database.update_camera(pc)
-                rec.add_camera_with_trivial_rig(pc)
-                im = pycolmap.Image(name=s, camera_id=dbim.camera_id, image_id=dbim.image_id)
-                im.points2D = pycolmap.Point2DList(
-                    [pycolmap.Point2D(xy) for xy in database.read_keypoints(dbim.image_id)[:, :2]])
-                rec.add_image_with_trivial_frame(im, pycolmap.Rigid3d(cam.world_to_camera[:3, :4]))
+        rec = _posed_reconstruction(pycolmap, db, cameras, safe)
         out = work / "sparse"
         out.mkdir(exist_ok=True)
         opts = pycolmap.IncrementalPipelineOptions()

@@ -77,6 +77,66 @@ def _num(d: dict, key: str, where: str):
     return f
 
 
+def _world_to_camera(matrix, where):
+    """The world-to-camera matrix (OpenCV axes) of a camera-to-world ``transform_matrix``
+    (OpenGL axes; 3x4 or 4x4; a uniformly scaled rotation block is normalised)."""
+    try:
+        c2w = np.asarray(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SceneError(f"{where}: 'transform_matrix' is not a numeric 4x4 matrix; fix the file") from None
+    if c2w.shape == (3, 4):
+        c2w = np.vstack([c2w, [0, 0, 0, 1]])
+    if c2w.shape != (4, 4):
+        raise SceneError(f"{where}: 'transform_matrix' has shape {c2w.shape}, expected 4x4; fix the file")
+    if not np.all(np.isfinite(c2w)):
+        raise SceneError(f"{where}: pose contains non-finite values (NaN or Inf); fix or remove this frame")
+    c2w = c2w @ OPENGL_TO_OPENCV
+    # allow a uniformly scaled rotation block (some exporters) by normalising columns
+    R = c2w[:3, :3]
+    norms = np.linalg.norm(R, axis=0)
+    if np.all(norms > 0) and np.allclose(norms, norms.mean(), rtol=1e-3):
+        c2w[:3, :3] = R / norms
+    try:
+        w2c = np.linalg.inv(c2w)
+    except np.linalg.LinAlgError:
+        raise SceneError(f"{where}: 'transform_matrix' is singular; fix or remove this frame") from None
+    check_pose(w2c, where)
+    return w2c
+
+
+def _intrinsics(merged, path, where):
+    """``(w, h, fl_x, fl_y, cx, cy)`` of a frame (its keys override the file's)."""
+    w = _num(merged, "w", where)
+    h = _num(merged, "h", where)
+    if w is None or h is None:
+        if not path.is_file():
+            w, h = None, None
+        else:
+            try:
+                w, h = read_image_size(path)
+            except SceneError:
+                w, h = None, None
+    if w is None or h is None:
+        # image missing or unreadable and no 'w'/'h': placeholder size; the image loader
+        # skips this frame (or raises in strict mode) before the camera is ever used
+        w, h = 800.0, 800.0
+    fl_x, fl_y = _num(merged, "fl_x", where), _num(merged, "fl_y", where)
+    ax, ay = _num(merged, "camera_angle_x", where), _num(merged, "camera_angle_y", where)
+    if fl_x is None and ax is not None:
+        fl_x = 0.5 * w / math.tan(0.5 * ax)
+    if fl_y is None and ay is not None and fl_x is None:
+        fl_y = 0.5 * h / math.tan(0.5 * ay)
+    if fl_x is None and fl_y is None:
+        raise SceneError(f"{where}: no focal length ('fl_x' or 'camera_angle_x'); add it to the file")
+    fl_x = fl_x if fl_x is not None else fl_y
+    fl_y = fl_y if fl_y is not None else fl_x
+    cx = _num(merged, "cx", where)
+    cy = _num(merged, "cy", where)
+    cx = w / 2 if cx is None else cx
+    cy = h / 2 if cy is None else cy
+    return w, h, fl_x, fl_y, cx, cy
+
+
 def transforms_frames(root: Path, files: list, variant: str, warnings: list):
     """FrameSpecs for every frame of ``files`` (train file first); ``is_test`` set for test files.
 
@@ -104,57 +164,8 @@ def transforms_frames(root: Path, files: list, variant: str, warnings: list):
             name = str(Path(fr["file_path"]).as_posix()).lstrip("./") or path.name
             if path.suffix and not Path(name).suffix:
                 name += path.suffix
-            # pose: camera-to-world, OpenGL axes -> world-to-camera, OpenCV axes
-            try:
-                c2w = np.asarray(fr["transform_matrix"], dtype=np.float64)
-            except (TypeError, ValueError):
-                raise SceneError(f"{where}: 'transform_matrix' is not a numeric 4x4 matrix; fix the file") from None
-            if c2w.shape == (3, 4):
-                c2w = np.vstack([c2w, [0, 0, 0, 1]])
-            if c2w.shape != (4, 4):
-                raise SceneError(f"{where}: 'transform_matrix' has shape {c2w.shape}, expected 4x4; fix the file")
-            if not np.all(np.isfinite(c2w)):
-                raise SceneError(f"{where}: pose contains non-finite values (NaN or Inf); fix or remove this frame")
-            c2w = c2w @ OPENGL_TO_OPENCV
-            # allow a uniformly scaled rotation block (some exporters) by normalising columns
-            R = c2w[:3, :3]
-            norms = np.linalg.norm(R, axis=0)
-            if np.all(norms > 0) and np.allclose(norms, norms.mean(), rtol=1e-3):
-                c2w[:3, :3] = R / norms
-            try:
-                w2c = np.linalg.inv(c2w)
-            except np.linalg.LinAlgError:
-                raise SceneError(f"{where}: 'transform_matrix' is singular; fix or remove this frame") from None
-            check_pose(w2c, where)
-            # intrinsics (frame overrides global)
-            w = _num(merged, "w", where)
-            h = _num(merged, "h", where)
-            if w is None or h is None:
-                if not path.is_file():
-                    w, h = None, None
-                else:
-                    try:
-                        w, h = read_image_size(path)
-                    except SceneError:
-                        w, h = None, None
-            if w is None or h is None:
-                # image missing or unreadable and no 'w'/'h': placeholder size; the image loader
-                # skips this frame (or raises in strict mode) before the camera is ever used
-                w, h = 800.0, 800.0
-            fl_x, fl_y = _num(merged, "fl_x", where), _num(merged, "fl_y", where)
-            ax, ay = _num(merged, "camera_angle_x", where), _num(merged, "camera_angle_y", where)
-            if fl_x is None and ax is not None:
-                fl_x = 0.5 * w / math.tan(0.5 * ax)
-            if fl_y is None and ay is not None and fl_x is None:
-                fl_y = 0.5 * h / math.tan(0.5 * ay)
-            if fl_x is None and fl_y is None:
-                raise SceneError(f"{where}: no focal length ('fl_x' or 'camera_angle_x'); add it to the file")
-            fl_x = fl_x if fl_x is not None else fl_y
-            fl_y = fl_y if fl_y is not None else fl_x
-            cx = _num(merged, "cx", where)
-            cy = _num(merged, "cy", where)
-            cx = w / 2 if cx is None else cx
-            cy = h / 2 if cy is None else cy
+            w2c = _world_to_camera(fr["transform_matrix"], where)
+            w, h, fl_x, fl_y, cx, cy = _intrinsics(merged, path, where)
             try:
                 cam = Camera(int(round(w)), int(round(h)), fl_x, fl_y, cx, cy, w2c)
             except ValueError as exc:

@@ -1,23 +1,34 @@
-"""Training building blocks: schedules, initialisation, loss on the device, Adam on the device.
+"""Training: configuration, the trainer, its vertex state, topology strategy, schedules, losses.
 
+* :mod:`.config` - :class:`TrainConfig` (every default once, with help text and CLI flag).
+* :mod:`.trainer` - :class:`Trainer`, the loop behind ``tsplus train`` (one step on the device,
+  checkpoints, evaluation, the final mesh); :mod:`.loop` runs its :meth:`Trainer.train`.
+* :mod:`.callbacks` - :class:`TrainCallback`, hooks on the real training loop (benchmarks).
+* :mod:`.state` - :class:`VertexState`, the per-vertex arrays (parameters, Adam moments) and the
+  triangles on the host.
+* :mod:`.strategy` - pure topology operations on a :class:`VertexState` (prune, densify, remove
+  unused vertices) and :class:`~.strategy.TopologyStrategy`, the pre/post-step hooks.
 * :mod:`.schedules` - every schedule of method.md (:class:`Schedule`), opacity-floor logit mapping.
 * :mod:`.init` - :func:`init_from_points` (SfM points -> Delaunay faces -> TriangleModel).
-* :mod:`.losses` - :class:`ImageLoss` (0.8 L1 + 0.2 (1 - SSIM) and its image gradient, WGSL) and
-  the float64 twin :func:`image_loss_reference`.
-* :mod:`.optim` - :class:`Adam` (WGSL, one dispatch per parameter group) and :func:`adam_reference`.
-* :mod:`.kernels` - the trainer's small kernels (opacity activation, parameter gradients, v_image
-  packing, early opacity loss) with float64 twins.
-* :mod:`.normals` - the optional normal loss (:class:`~.normals.NormalLoss`, WGSL, both gradient
-  paths) and its float64 twin; the priors are read by :mod:`tsplus_wgpu.data.normals`.
-* :mod:`.trainer` - :class:`~.trainer.Trainer` and :class:`~.trainer.TrainConfig`, the loop behind
-  ``tsplus train`` (:mod:`.cli`). Pruning/densification during training are not implemented yet
-  (see the trainer's module docstring).
+* :mod:`.losses`, :mod:`.normals` - the image loss and the optional normal loss on the device.
+* :mod:`.profile` - per-stage timing of a step; :mod:`.ablations` - the paper's ablation rows.
 
-The device modules import wgpu; they are loaded on first use.
+:class:`Trainer` imports the device modules (wgpu); it is loaded on first use.
 """
 
+from .callbacks import TrainCallback
+from .config import TrainConfig
 from .init import InitInfo, delaunay_faces, init_from_points
 from .schedules import Schedule, logit_from_opacity, opacity_from_logit, reinvert_logits
+from .state import VertexState
 
-__all__ = ["Schedule", "opacity_from_logit", "logit_from_opacity", "reinvert_logits", "init_from_points",
-           "delaunay_faces", "InitInfo"]
+
+def __getattr__(name):
+    if name == "Trainer":
+        from .trainer import Trainer
+        return Trainer
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = ["Trainer", "TrainConfig", "TrainCallback", "VertexState", "Schedule", "opacity_from_logit",
+           "logit_from_opacity", "reinvert_logits", "init_from_points", "delaunay_faces", "InitInfo"]

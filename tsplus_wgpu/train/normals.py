@@ -1,5 +1,5 @@
 """The optional normal loss (method.md: ``0.05 [indoor 0.025] * mean(1 - <N_rendered, N_prior>)``
-for it > 5000, scaled with ``quick``), on the device and as a float64 twin.
+for it > 5000, scaled with ``quick``), on the device (float64 twin: :mod:`tsplus_wgpu.reference.normals`).
 
 Definitions (method.md leaves them open; these are ours):
 
@@ -37,7 +37,7 @@ gives per-corner position, colour and opacity gradients; ``normal_backward.wgsl`
 colour gradients to the triangle normal and through ``normalize(cross(.))`` to the vertices,
 adds the corners' position gradients and routes the opacity gradient to the vertex holding
 the minimum; the deterministic segmented sum over corners sorted by vertex
-(:class:`~tsplus_wgpu.backward.SegmentSum`) gathers them per shared vertex, and
+(:class:`~tsplus_wgpu.kernels.reduce.SegmentSum`) gathers them per shared vertex, and
 ``normal_accumulate.wgsl`` adds ``weight x`` that into the trainer's gradient buffers before
 Adam. No host round trip beyond the forward pass's own size readbacks. A dedicated
 normal-composite rasterizer pair would save the second sort/bin, but would duplicate the
@@ -46,52 +46,22 @@ most delicate kernels (and their budget handling on lavapipe) for a loss that is
 The normal image is rendered at the training resolution (s = 1) even while the colour image
 is supersampled: the prior has that resolution, and the loss is a regulariser.
 
-Twins: :func:`normal_model_reference`, :func:`normal_render_reference`,
-:func:`normal_loss_reference` (the whole gradient, float64; ``paths`` drops either path for the
-tests' mutation check), :func:`normal_loss_value_reference` (the loss alone, for finite
-differences).
+Twins (:mod:`tsplus_wgpu.reference.normals`): :func:`normal_model`, :func:`normal_backward`,
+:func:`normal_accumulate` (one per kernel), :func:`normal_render`, :func:`normal_loss` (the whole
+gradient, float64; ``paths`` drops either path for the tests' mutation check),
+:func:`normal_loss_value` (the loss alone, for finite differences). The priors
+(:func:`~tsplus_wgpu.data.normals.prepare_prior`) are scene data: :mod:`tsplus_wgpu.data.normals`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .. import reference as ref
-from .. import reference_backward as rb
-from ..backward import SegmentSum
-from ..device_model import DeviceModel
-from ..gpu import Stage
-from ..types import Camera, TriangleModel
-
-SH_C0 = ref.SH_C0
-#: A prior pixel is used when its decoded normal's length is in this range (then normalised):
-#: grey (128,128,128) = the zero vector, black = (-1,-1,-1) of length 1.73 and NaN are left out.
-PRIOR_MIN_LENGTH = 0.5
-PRIOR_MAX_LENGTH = 1.5
-PATHS = ("alpha", "normal")
-
-
-def _groups(n):
-    return max(1, (int(n) + 255) // 256)
-
-
-# ---------------------------------------------------------------------- priors
-
-def prepare_prior(normals, alpha=None):
-    """A raw normal map ``[H, W, 3]`` (decoded to [-1, 1]) -> ``(unit prior [H, W, 3] float32,
-    valid [H, W] bool)``: pixels whose length is outside [0.5, 1.5], not finite, or whose
-    ``alpha`` (optional ``[H, W]``) is 0 are invalid (prior 0 there)."""
-    n = np.asarray(normals, np.float64)
-    if n.ndim != 3 or n.shape[2] != 3:
-        raise ValueError(f"normal map: expected shape [H, W, 3], got {n.shape}")
-    finite = np.all(np.isfinite(n), axis=2)
-    n = np.where(finite[..., None], n, 0.0)
-    length = np.linalg.norm(n, axis=2)
-    valid = finite & (length >= PRIOR_MIN_LENGTH) & (length <= PRIOR_MAX_LENGTH)
-    if alpha is not None:
-        valid &= np.asarray(alpha) > 0
-    unit = np.where(valid[..., None], n / np.where(valid, length, 1.0)[..., None], 0.0)
-    return unit.astype(np.float32), valid
+from ..data.normals import PRIOR_MAX_LENGTH, PRIOR_MIN_LENGTH, prepare_prior
+from ..kernels.normals import NormalAccumulate, NormalBackward, NormalModel
+from ..kernels.reduce import SegmentSum
+from ..render.device_model import DeviceModel
+from ..types import TriangleModel
 
 
 def normal_cotangents(prior, valid):
@@ -124,133 +94,7 @@ def normal_error(rendered, prior, valid):
                 angle_deg=float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).mean()), pixels=int(v.sum()))
 
 
-# ---------------------------------------------------------------------- twins
-
-def triangle_normals_reference(positions, triangles, camera: Camera):
-    """Per triangle ``(n [M, 3] camera space, facing the camera; u [M, 3] world unit normal;
-    length [M] = |cross|; sign [M] = +-1)`` float64 (twin of ``common/normal.wgsl``)."""
-    x = np.asarray(positions, np.float64)[np.asarray(triangles, np.int64)]         # [M, 3, 3]
-    e = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
-    length = np.sqrt(np.einsum("mi,mi->m", e, e))
-    ok = length > 0
-    u = np.where(ok[:, None], e / np.where(ok, length, 1.0)[:, None], 0.0)
-    R, t = camera.R, camera.t
-    n = u @ R.T
-    c = x.mean(axis=1) @ R.T + t
-    sign = np.where(np.einsum("mi,mi->m", n, c) > 0, -1.0, 1.0)
-    return sign[:, None] * n, u, np.where(ok, length, 0.0), sign
-
-
-def normal_model_reference(model: TriangleModel, camera: Camera) -> TriangleModel:
-    """The unshared normal render model (twin of ``normal_model.wgsl``): corners ``3t + k`` at
-    the triangles' vertices, SH DC ``n_t / (2 SH_C0)`` (degree 0), opacity ``o_T``."""
-    tri = model.triangles
-    m = tri.shape[0]
-    n, _, _, _ = triangle_normals_reference(model.positions, tri, camera)
-    pos = model.positions[tri].reshape(3 * m, 3)
-    sh = np.repeat(n / (2.0 * SH_C0), 3, axis=0)[:, None, :]
-    op = np.repeat(model.opacity[tri].min(axis=1), 3)
-    return TriangleModel(pos, np.arange(3 * m).reshape(m, 3), sh, op)
-
-
-def normal_render_reference(model: TriangleModel, camera: Camera, sigma, near=0.01):
-    """``(N [H, W, 3], T [H, W])``: the alpha-blended camera-space normal and the final
-    transmittance, float64, through :func:`tsplus_wgpu.reference.render` of the normal model."""
-    r = ref.render(normal_model_reference(model, camera), camera, sigma, (0.0, 0.0, 0.0), near)
-    return 2.0 * r.image - (1.0 - r.transmittance)[..., None], r.transmittance
-
-
-def normal_loss_value_reference(model, camera, sigma, prior, valid, weight=1.0, near=0.01):
-    """``weight * mean over valid pixels of (1 - <N, P>)`` (0 when no pixel is valid), float64."""
-    v = np.asarray(valid, bool)
-    if not v.any():
-        return 0.0
-    n, _ = normal_render_reference(model, camera, sigma, near)
-    return float(weight) * float(np.mean(1.0 - np.einsum("pc,pc->p", n[v], np.asarray(prior, np.float64)[v])))
-
-
-def normal_loss_reference(model: TriangleModel, camera: Camera, sigma, prior, valid, weight=1.0, near=0.01,
-                          paths=PATHS):
-    """Float64 twin of the whole normal-loss gradient (normal_model -> forward -> backward ->
-    normal_backward -> per-vertex sum -> normal_accumulate).
-
-    Args:
-        model, camera, sigma, near: as for :func:`tsplus_wgpu.reference.render`.
-        prior, valid: from :func:`prepare_prior`.
-        weight: the loss weight.
-        paths: which gradient paths to keep: ``"alpha"`` (through the blending weights: the
-            corner positions and o_T) and ``"normal"`` (through the 3D normal). Both for the
-            true gradient; one alone only for tests that show the other matters.
-
-    Returns:
-        ``(loss, v_positions [N, 3], v_opacity [N])`` float64.
-    """
-    bad = set(paths) - set(PATHS)
-    if bad:
-        raise ValueError(f"paths: unknown {sorted(bad)}; expected a subset of {PATHS}")
-    tri = model.triangles
-    m, nv = tri.shape[0], model.num_vertices
-    v_pos = np.zeros((nv, 3))
-    v_op = np.zeros(nv)
-    vi, vt, cnt = normal_cotangents(prior, valid)
-    if cnt == 0 or m == 0:
-        return 0.0, v_pos, v_op
-    um = normal_model_reference(model, camera)
-    r = ref.render(um, camera, sigma, (0.0, 0.0, 0.0), near)
-    n_img = 2.0 * r.image - (1.0 - r.transmittance)[..., None]
-    v = np.asarray(valid, bool)
-    loss = float(weight) * float(np.mean(1.0 - np.einsum("pc,pc->p", n_img[v], np.asarray(prior, np.float64)[v])))
-    g = rb.backward(um, camera, sigma, vi, vt, (0.0, 0.0, 0.0), near)
-    corner = np.zeros((m, 3, 3))
-    if "alpha" in paths:
-        corner += g.v_positions.reshape(m, 3, 3)
-        v_ot = g.v_opacity.reshape(m, 3).sum(axis=1)
-        best = rb.min_vertex(model.opacity, tri)
-        np.add.at(v_op, tri[np.arange(m), best], v_ot)
-    if "normal" in paths:
-        v_n = g.v_sh[:, 0, :].reshape(m, 3, 3).sum(axis=1) / (2.0 * SH_C0)        # [M, 3]
-        _, u, length, sign = triangle_normals_reference(model.positions, tri, camera)
-        ok = length > 0
-        v_u = sign[:, None] * (v_n @ camera.R)                                     # R^T v_n
-        v_e = (v_u - u * np.einsum("mi,mi->m", u, v_u)[:, None]) / np.where(ok, length, 1.0)[:, None]
-        v_e[~ok] = 0.0
-        x = model.positions[tri]
-        g1 = np.cross(x[:, 2] - x[:, 0], v_e)
-        g2 = np.cross(v_e, x[:, 1] - x[:, 0])
-        corner += np.stack([-(g1 + g2), g1, g2], axis=1)
-    np.add.at(v_pos, tri.ravel(), corner.reshape(-1, 3))
-    return loss, float(weight) * v_pos, float(weight) * v_op
-
-
 # ---------------------------------------------------------------------- device
-
-class NormalModel(Stage):
-    stage = "normal_model"
-
-    def __call__(self, enc, params, positions, triangles, opacity, corner_positions, corner_sh, corner_opacity, m,
-                 profiler=None):
-        self.dispatch(enc, _groups(m), dict(np_=params, positions=positions, triangles=triangles, opacity=opacity,
-                                            corner_positions=corner_positions, corner_sh=corner_sh,
-                                            corner_opacity=corner_opacity), profiler)
-
-
-class NormalBackward(Stage):
-    stage = "normal_backward"
-
-    def __call__(self, enc, params, positions, triangles, opacity, v_corner_positions, v_corner_sh, v_corner_opacity,
-                 corner_vals, m, profiler=None):
-        self.dispatch(enc, _groups(m), dict(np_=params, positions=positions, triangles=triangles, opacity=opacity,
-                                            v_corner_positions=v_corner_positions, v_corner_sh=v_corner_sh,
-                                            v_corner_opacity=v_corner_opacity, corner_vals=corner_vals), profiler)
-
-
-class NormalAccumulate(Stage):
-    stage = "normal_accumulate"
-
-    def __call__(self, enc, params, vertex_sums, v_positions, v_opacity, n, profiler=None):
-        self.dispatch(enc, _groups(n), dict(np_=params, vertex_sums=vertex_sums, v_positions=v_positions,
-                                            v_opacity=v_opacity), profiler)
-
 
 class NormalLoss:
     """The normal loss's gradient on the device, added into caller-owned gradient buffers.
@@ -304,10 +148,9 @@ class NormalLoss:
         v = np.concatenate([vi.reshape(-1, 3), vt.reshape(-1, 1)], axis=1).astype(np.float32)
         return self.ctx.upload(v, label), cnt
 
-    def _params(self, camera, weight):
-        R, t = camera.R, camera.t
-        return self.model_k.uniform("NormalParams", rot0=[*R[0], t[0]], rot1=[*R[1], t[1]], rot2=[*R[2], t[2]],
-                                    num_triangles=self.m, num_vertices=self.n, weight=float(weight))
+    def params(self, camera, weight):
+        """The ``NormalParams`` uniform of ``camera`` and the current topology."""
+        return self.model_k.params(camera, self.m, self.n, weight)
 
     def run(self, camera, sigma, near, positions, triangles, opacity, target, v_positions, v_opacity, weight):
         """Add ``weight x`` the normal loss's gradient for ``camera`` into ``v_positions``
@@ -318,7 +161,7 @@ class NormalLoss:
         if self.dm is None:
             raise RuntimeError("NormalLoss.set_topology was not called")
         c, r = self.ctx, self.renderer
-        params = self._params(camera, weight)
+        params = self.params(camera, weight)
         enc = c.device.create_command_encoder()
         self.model_k(enc, params, positions, triangles, opacity, self.dm.buffers["positions"], self.dm.buffers["sh"],
                      self.dm.buffers["opacity"], self.m)
@@ -335,7 +178,7 @@ class NormalLoss:
 
     def gradients(self, model: TriangleModel, camera, sigma, prior, valid, weight=1.0, near=0.01):
         """Host convenience (tests, tools): ``(loss, v_positions [N, 3], v_opacity [N])`` of
-        :func:`normal_loss_reference`'s definition, computed on the device (the loss from the
+        :func:`tsplus_wgpu.reference.normals.normal_loss`'s definition, computed on the device (the loss from the
         read-back normal render, in float64)."""
         c = self.ctx
         dm = DeviceModel.from_model(self.renderer, model)
@@ -361,7 +204,7 @@ def render_normals(renderer, model: TriangleModel, camera, sigma, near=0.01, los
     k.set_topology(model.triangles, model.num_vertices)
     c = k.ctx
     enc = c.device.create_command_encoder()
-    k.model_k(enc, k._params(camera, 1.0), dm.buffers["positions"], dm.buffers["triangles"], dm.buffers["opacity"],
+    k.model_k(enc, k.params(camera, 1.0), dm.buffers["positions"], dm.buffers["triangles"], dm.buffers["opacity"],
               k.dm.buffers["positions"], k.dm.buffers["sh"], k.dm.buffers["opacity"], k.m)
     c.queue.submit([enc.finish()])
     res = renderer.forward(k.dm, camera, sigma, (0.0, 0.0, 0.0), near)
@@ -378,49 +221,4 @@ def loss_from_render(image, transmittance, prior, valid, weight=1.0):
 
 
 __all__ = ["NormalLoss", "NormalModel", "NormalBackward", "NormalAccumulate", "prepare_prior", "normal_cotangents",
-           "normal_error", "triangle_normals_reference", "normal_model_reference", "normal_render_reference",
-           "normal_loss_value_reference", "normal_loss_reference", "loss_from_render", "render_normals", "PRIOR_MIN_LENGTH",
-           "PRIOR_MAX_LENGTH"]
-
-
-def bench_step_cost(size="tiny", reps=10, warm=600, adapter=None):
-    """Per-step cost of the normal loss: a quick-preset trainer on the procedural scene
-    (``size``, its true normal maps, topology off so the mesh stays fixed) trained to ``warm``
-    of 3000 iterations (normal loss on from 501), then ``reps`` pairs of steps with and without
-    the normal loss, interleaved (so load from other processes hits both alike). Returns
-    ``dict(with_ms, without_ms, cost_ms, triangles, vertices)`` (medians, host wall time with a
-    queue wait after each step)."""
-    import time
-
-    from ..data import load_procedural
-    from ..data.procedural import normal_maps
-    from ..renderer import Renderer
-    from .trainer import TrainConfig, Trainer
-    sc = load_procedural(size)
-    pri = [prepare_prior(m) if v in sc.train_indices else None for v, m in enumerate(normal_maps(sc))]
-    r = Renderer(adapter)
-    t = Trainer(sc, TrainConfig(iterations=3000, quick=True, topology=False, background=sc.background), renderer=r,
-                normals=pri)
-    t.train(progress=False, until=warm, log_every=0)
-    maps, c = t.normal_maps, r.ctx
-    times = {True: [], False: []}
-    for _ in range(int(reps)):
-        for on in (True, False):
-            t.normal_maps = maps if on else None
-            c.wait()
-            t0 = time.perf_counter()
-            t.step()
-            c.wait()
-            times[on].append(time.perf_counter() - t0)
-    t.normal_maps = maps
-    w, wo = 1e3 * float(np.median(times[True])), 1e3 * float(np.median(times[False]))
-    return dict(size=size, with_ms=w, without_ms=wo, cost_ms=w - wo, triangles=t.m, vertices=t.n,
-                adapter=r.adapter_name)
-
-
-if __name__ == "__main__":   # python -m tsplus_wgpu.train.normals [tiny|small|demo] [pairs]
-    import sys
-    res = bench_step_cost(sys.argv[1] if len(sys.argv) > 1 else "tiny", int(sys.argv[2]) if len(sys.argv) > 2 else 10)
-    print(f"{res['adapter']}: procedural:{res['size']} ({res['triangles']} triangles, {res['vertices']} vertices): "
-          f"step {res['without_ms']:.1f} ms without the normal loss, {res['with_ms']:.1f} ms with "
-          f"(+{res['cost_ms']:.1f} ms; medians of interleaved steps)")
+           "normal_error", "loss_from_render", "render_normals", "PRIOR_MIN_LENGTH", "PRIOR_MAX_LENGTH"]

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import time
 
-from ..gpu import Profiler
+from ..gpu.recorder import Recorder
 
 STAGES = ("projection", "binning", "sort", "forward", "loss", "backward", "gather", "optimizer", "topology")
 
@@ -49,23 +49,29 @@ class StepProfiler:
         self.ctx = ctx
         self.timestamps = bool(ctx.features.timestamps)
         # one query set per trainer-side stage: the kernels of a stage need no labels of their own
-        self.profilers = {k: Profiler(ctx) for k in ("loss", "optimizer", "topology")} if self.timestamps else {}
+        self.profilers = {k: Recorder(ctx) for k in ("loss", "optimizer", "topology")} if self.timestamps else {}
+        self.clock = Recorder(ctx, timestamps=False)   # host timing: marks, host work, the wall time
         self.times = {}
         self.kernels = {}
 
+    @staticmethod
+    def describe(timestamps):
+        """The timing method's name with or without timestamp queries."""
+        return "timestamp queries" if timestamps else "host timing (per-stage submit + queue wait)"
+
     @property
     def method(self):
-        return "timestamp queries" if self.timestamps else "host timing (per-stage submit + queue wait)"
+        return self.describe(self.timestamps)
 
     def profiler(self, stage):
-        """The :class:`~tsplus_wgpu.gpu.Profiler` to hand to ``stage``'s kernels (None: host timing)."""
+        """The :class:`~tsplus_wgpu.gpu.Recorder` to hand to ``stage``'s kernels (None: host timing)."""
         return self.profilers.get(stage)
 
     def begin(self):
-        self.ctx.wait()
+        self.clock.start()
         self.times = {k: 0.0 for k in STAGES}
         self.kernels = {}
-        self.t0 = self.t = time.perf_counter()
+        self.t0 = self.clock.t
 
     def add(self, stage, ms):
         self.times[stage] = self.times.get(stage, 0.0) + float(ms)
@@ -75,21 +81,18 @@ class StepProfiler:
         for label, ms in timings.items():
             self.kernels[label] = self.kernels.get(label, 0.0) + float(ms)
             self.add(KERNEL_STAGE.get(label, "backward" if "backward" in label else "forward"), ms)
-        self.t = time.perf_counter()
+        self.clock.restart()
 
     def mark(self, stage):
         """The work of ``stage`` was just submitted: with timestamps nothing to do until
         :meth:`finish`; on the host wait for it and charge the time since the last mark."""
         if self.timestamps:
             return
-        self.ctx.wait()
-        now = time.perf_counter()
-        self.add(stage, (now - self.t) * 1e3)
-        self.t = now
+        self.add(stage, self.clock.lap(stage))
 
     def host(self, stage, seconds):
         self.add(stage, seconds * 1e3)
-        self.t = time.perf_counter()
+        self.clock.restart()
 
     def finish(self):
         """``{stage: ms, ..., "wall": ms, "other": ms}`` of the step."""

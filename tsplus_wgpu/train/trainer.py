@@ -23,9 +23,11 @@ uninterrupted one bit for bit.
 The parts of issue 5 beyond the step above:
 
 * Topology (prune, densify, the densification stop, ``max_vertices``) is
-  :class:`~.topology.TopologyStrategy`: the step records its per-triangle max-weight
-  accumulation, and every topology step (500 iterations, scaled) is one host round trip that
-  edits the mesh and the Adam state and re-creates the device buffers. Its events go to
+  :class:`~.strategy.TopologyStrategy`: the step records its per-triangle max-weight
+  accumulation, and every topology step (500 iterations, scaled) is one host round trip
+  (:meth:`Trainer.apply_topology`): the trainer reads its :class:`~.state.VertexState`, the
+  strategy maps it to a new one (pure operations, :mod:`.strategy.ops`) and
+  :meth:`Trainer.set_state` re-creates the device buffers. Its events go to
   ``log.jsonl`` (``event: topology`` / ``densify_stop``).
 * Anti-aliasing (method.md): iteration ``it`` renders with the exact s-times camera
   (:func:`~.kernels.supersampled_camera`, ``s = Schedule.supersample(it)``: 1, 2 from 20000,
@@ -55,129 +57,26 @@ The parts of issue 5 beyond the step above:
 from __future__ import annotations
 
 import json
-import math
-import os
-import signal
 import time
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import asdict
 
 import numpy as np
 
-from ..device_model import DeviceModel
+from ..io.atomic import atomic_write
+from ..io.metrics import psnr, ssim  # noqa: F401  (re-exported: train.trainer.psnr/ssim)
+from ..kernels.loss import DownsampleArea, DownsampleAreaT, PackVOut, supersampled_camera
+from ..kernels.optim import Adam, OpacityRegGradient, TrainActivate, TrainGrads
+from ..render.device_model import DeviceModel
 from ..types import TriangleModel
+from .checkpoint import CHECKPOINT_VERSION, read_checkpoint, resume_config
+from .config import TrainConfig
 from .init import SH_C0, init_from_points
-from .kernels import DownsampleArea, DownsampleAreaT, OpacityReg, PackVOut, TrainActivate, TrainGrads, supersampled_camera
-from .losses import ImageLoss, ssim_map_reference
+from .losses import ImageLoss
+from .loop import TrainLoop
 from .normals import NormalLoss, loss_from_render
-from .optim import Adam
-from .schedules import SIGMA_FINAL, SUPERSAMPLE_EVAL, Schedule, logit_from_opacity
-from .topology import TopologyStrategy
-
-CHECKPOINT_VERSION = 1
-FINAL_PRUNE_WEIGHT = 0.5
-
-
-@dataclass
-class TrainConfig:
-    """Everything that determines a run (written to ``config.json``, stored in checkpoints).
-
-    Args:
-        iterations: optimisation steps (30000 in the paper).
-        quick: scale every schedule's iteration constants to ``iterations`` (``--preset quick``).
-        indoor: the indoor constants of method.md.
-        seed: view order (and nothing else is random).
-        sh_degree: SH degree of the model's storage (the schedule raises the trained degree).
-        background: RGB behind the triangles.
-        near: near plane (scene units).
-        log_every: iterations between log lines (host readback only then).
-        checkpoint_every: iterations between checkpoints (0: only at the end / on Ctrl-C).
-        opacity_reg: apply the early opacity loss of method.md.
-        topology: run pruning and densification (:class:`~.topology.TopologyStrategy`).
-        max_vertices: densification cap (method.md's 3M).
-        densify_stop_rel, densify_stop_windows: densification stops when the mean training L1
-            of the last K topology windows improved by less than this fraction on the K before
-            (0: never stop early).
-        quick_topology_epochs: with ``quick``, at least this many epochs (passes over the
-            training views) between topology events (prune, densify), so the first prune comes
-            after the opacities have had time to separate and every weight prune sees every
-            view (the scaled 500 is 5 iterations in a 300-iteration run: shorter than an epoch).
-        quick_opacity_lr_scale: with ``quick``, the opacity learning rate is multiplied by this
-            (a 300-iteration run has 1/100 of the paper's steps; at 0.03 a logit moves at most
-            1.2 before the first scaled prune, so opacities stay near the initial 0.28 and the
-            prune deletes most of the mesh). Neither applies to the paper preset.
-        hard_prune, weight_prune, sigma_decay, sigma_final, opacity: the paper's ablations
-            (Tables 2-3; :class:`~.schedules.Schedule` documents each, ``ablations.ABLATIONS``
-            names the rows): ``hard_prune=False`` drops the opacity criterion of pruning,
-            ``weight_prune=False`` the blending-weight one, ``sigma_decay=False`` trains at
-            ``sigma_final`` throughout, ``sigma_final`` 0.0001 (hard) or 0.1 (soft),
-            ``opacity`` ``"opaque"`` (the floor ramps to 0.9999) or ``"free"`` (no floor).
-        normals: folder of normal-map priors (``tsplus train --normals``;
-            :mod:`tsplus_wgpu.data.normals` documents the files and their convention): adds
-            method.md's normal loss ``0.05 [indoor 0.025] mean(1 - <N_rendered, N_prior>)`` for
-            it > 5000 (scaled with ``quick``) on the training views that have a map
-            (:mod:`.normals`). None: off.
-    """
-
-    iterations: int = 30000
-    quick: bool = False
-    indoor: bool = False
-    seed: int = 0
-    sh_degree: int = 3
-    background: tuple = (0.0, 0.0, 0.0)
-    near: float = 0.01
-    log_every: int = 50
-    checkpoint_every: int = 0
-    opacity_reg: bool = True
-    topology: bool = True
-    max_vertices: int = 3_000_000
-    densify_stop_rel: float = 0.01
-    densify_stop_windows: int = 3
-    quick_topology_epochs: float = 3.0
-    quick_opacity_lr_scale: float = 10.0
-    hard_prune: bool = True
-    weight_prune: bool = True
-    sigma_decay: bool = True
-    sigma_final: float = SIGMA_FINAL
-    opacity: str = "opaque"
-    normals: str | None = None
-    extra: dict = field(default_factory=dict)
-
-    def schedule(self, views=1):
-        return Schedule(total=int(self.iterations), indoor=bool(self.indoor), quick=bool(self.quick),
-                        views=int(views), topology_epochs=float(self.quick_topology_epochs),
-                        opacity_lr_scale=float(self.quick_opacity_lr_scale), hard_prune=bool(self.hard_prune),
-                        weight_prune=bool(self.weight_prune), sigma_decay=bool(self.sigma_decay),
-                        sigma_final=float(self.sigma_final), opacity_mode=str(self.opacity))
-
-    #: fields that must match for ``--resume`` (the others may change between sessions)
-    RESUME_KEYS = ("iterations", "quick", "indoor", "seed", "sh_degree", "background", "near", "opacity_reg",
-                   "topology", "max_vertices", "densify_stop_rel", "densify_stop_windows", "quick_topology_epochs",
-                   "quick_opacity_lr_scale", "hard_prune", "weight_prune", "sigma_decay", "sigma_final", "opacity",
-                   "normals")
-
-
-def psnr(a, b):
-    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
-    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
-
-
-def ssim(a, b):
-    return float(ssim_map_reference(a, b).mean())
-
-
-def _atomic_write_bytes(path, write):
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+from .schedules import FINAL_PRUNE_WEIGHT, SUPERSAMPLE_EVAL, logit_from_opacity
+from .state import PARAMS, VertexState
+from .strategy import TopologyStrategy
 
 
 class Trainer:
@@ -196,7 +95,7 @@ class Trainer:
 
     def __init__(self, scene, config: TrainConfig, renderer=None, model: TriangleModel | None = None,
                  normals=None):
-        from ..renderer import Renderer
+        from ..render.renderer import Renderer
         if not scene.train_indices:
             raise ValueError("scene: it has no training views")
         self.scene = scene
@@ -218,7 +117,7 @@ class Trainer:
         self.down = DownsampleArea(c)
         self.down_t = DownsampleAreaT(c)
         self.adam = Adam(c)
-        self.reg = OpacityReg(c, self.renderer.scratch)
+        self.reg = OpacityRegGradient(c, self.renderer.scratch)
         self._targets = {}
         #: per view (prior, valid) or None: the normal loss's priors (None: no normal loss)
         self.normal_maps = self._normal_priors(scene, config, normals)
@@ -231,42 +130,34 @@ class Trainer:
         self.topology = TopologyStrategy(self.sched, seed=config.seed, max_vertices=config.max_vertices,
                                          stop_rel=config.densify_stop_rel, stop_windows=config.densify_stop_windows,
                                          enabled=config.topology, near=config.near)
-        self._set_model(model.positions, model.triangles, model.sh,
-                        logit_from_opacity(model.opacity, self.sched.opacity_floor(0)))
+        #: the :class:`~.profile.StepProfiler` of profiled steps (created on the first one)
+        self.profiler = None
+        self.set_state(VertexState.from_model(model.positions, model.triangles, model.sh,
+                                              logit_from_opacity(model.opacity, self.sched.opacity_floor(0))))
 
     # ------------------------------------------------------------------ device state
-    def _set_model(self, positions, triangles, sh, logits, adam=None, max_weight=None):
-        """(Re)create every device buffer from host arrays (init, resume, topology edits).
-        ``sh`` is ``[N, K, 3]``; ``adam`` maps each group to its (exp_avg, exp_avg_sq) in the
-        flat layout of the parameter buffers; ``max_weight [M]`` seeds the topology's running
-        maximum."""
+    def set_state(self, state: VertexState):
+        """Replace the model under training (parameters, Adam moments, triangles, the
+        topology's max weights) with ``state``, re-creating every device buffer (init, resume,
+        topology edits)."""
         c = self.ctx
-        n, k = positions.shape[0], sh.shape[1]
-        m = triangles.shape[0]
+        n, m, k = state.n, state.m, state.k
         self.n, self.m, self.k = n, m, k
-        self.triangles_host = np.asarray(triangles, np.int64)
-        pos = np.ascontiguousarray(positions, np.float32)
-        sh_planar = np.ascontiguousarray(np.asarray(sh, np.float32).transpose(1, 0, 2))
-        w = np.ascontiguousarray(logits, np.float32)
+        self.triangles_host = np.asarray(state.triangles, np.int64)
         # positions, triangles and the renderer-layout SH double as vertex / index buffers: the
         # live viewer (tsplus train --view) draws them as they are, no copy
         import wgpu
         rw = wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST
-        self.params = dict(positions=c.upload(pos, "positions", usage=rw | wgpu.BufferUsage.VERTEX),
-                           sh=c.upload(sh_planar, "sh_planar"),
-                           logits=c.upload(w, "logits"))
-        sizes = dict(positions=3 * n, sh=3 * n * k, logits=n)
-        self.moments = {}
-        for key, size in sizes.items():
-            if adam is None:
-                m1 = m2 = np.zeros(size, np.float32)
-            else:
-                m1, m2 = adam[key]
-            self.moments[key] = (c.upload(np.asarray(m1, np.float32), f"exp_avg_{key}"),
-                                 c.upload(np.asarray(m2, np.float32), f"exp_avg_sq_{key}"))
-        self.sizes = sizes
-        render = dict(positions=self.params["positions"], triangles=c.upload(self.triangles_host.astype(np.uint32),
-                                                                             "triangles", usage=rw | wgpu.BufferUsage.INDEX),
+        usage = dict(positions=rw | wgpu.BufferUsage.VERTEX, sh=None, logits=None)
+        self.params, self.moments = {}, {}
+        for key in PARAMS:
+            param, m1, m2 = state.flat(key)
+            name = "sh_planar" if key == "sh" else key
+            self.params[key] = c.upload(param, name, usage=usage[key])
+            self.moments[key] = (c.upload(m1, f"exp_avg_{key}"), c.upload(m2, f"exp_avg_sq_{key}"))
+        self.sizes = dict(positions=3 * n, sh=3 * n * k, logits=n)
+        tris = c.upload(self.triangles_host.astype(np.uint32), "triangles", usage=rw | wgpu.BufferUsage.INDEX)
+        render = dict(positions=self.params["positions"], triangles=tris,
                       sh=c.buffer(12 * n * k, "render_sh", usage=rw | wgpu.BufferUsage.VERTEX),
                       opacity=c.buffer(4 * n, "render_opacity"))
         self.model = DeviceModel(c, render, n, m, k)
@@ -279,7 +170,7 @@ class Trainer:
         self.reg.set_topology(self.triangles_host)
         if self.normal_loss is not None:
             self.normal_loss.set_topology(self.triangles_host, n)
-        self.topology.attach(self, max_weight)
+        self.topology.attach(c, m, state.max_weight)
         self._activate(self.sched.opacity_floor(self.iteration))
 
     def _activate(self, floor, floor_old=None):
@@ -397,7 +288,7 @@ class Trainer:
         if sp is None:
             self.renderer.backward(res, v_out, read=False, out=self.gbuf)
         else:
-            from ..backward import backward
+            from ..render.backward import backward
             sp.mark("loss")
             sp.add_kernels(backward(self.renderer, res, v_out, profile=True, read=False, out=self.gbuf))
         nres = self._normal_step(it, view, cam)      # adds its gradient into gbuf (normal loss, optional)
@@ -438,7 +329,7 @@ class Trainer:
                 stats["normal_weight"] = self.normal_weight(it, view)
         if edit:
             t_edit = time.perf_counter()
-            self.topology.edit(self, it)
+            self.apply_topology(it)
             if sp is not None:
                 sp.host("topology", time.perf_counter() - t_edit)
         if sp is not None:
@@ -446,83 +337,46 @@ class Trainer:
         return stats
 
     def _step_profiler(self):
-        if getattr(self, "_profiler", None) is None:
+        if self.profiler is None:
             from .profile import StepProfiler
-            self._profiler = StepProfiler(self.ctx)
-        self._profiler.begin()
-        return self._profiler
+            self.profiler = StepProfiler(self.ctx)
+        self.profiler.begin()
+        return self.profiler
+
+    @property
+    def profile_method(self):
+        """How profiled steps are timed: ``"timestamp queries"`` or host timing."""
+        from .profile import StepProfiler
+        return self.profiler.method if self.profiler is not None else StepProfiler.describe(
+            bool(self.ctx.features.timestamps))
+
+    # ------------------------------------------------------------------ topology
+    def is_topology_step(self, it):
+        """Whether iteration ``it`` prunes or densifies."""
+        return self.topology.is_edit_step(it)
+
+    def read_state(self) -> VertexState:
+        """The model under training as a host :class:`~.state.VertexState` (a readback)."""
+        return VertexState.from_flat(self.state_arrays(), self.topology.max_weight())
+
+    def apply_topology(self, it):
+        """The topology edit of iteration ``it`` (prune / densify, :class:`~.strategy.TopologyStrategy`):
+        reads the state, lets the strategy map it to a new one and installs that. Returns the
+        new state."""
+        cams = [self.scene.cameras[i] for i in self.train_views]
+        state = self.topology.edit(self.read_state(), it, self.train_views, cams)
+        self.set_state(state)
+        return state
 
     # ------------------------------------------------------------------ loop
-    def train(self, out_dir=None, progress=True, until=None, log_every=None):
-        """Run to ``until`` (default: the configured iterations). Logs to ``out_dir/log.jsonl``;
-        checkpoints every ``checkpoint_every`` iterations and at the end; Ctrl-C (SIGINT)
-        finishes the current step, writes a checkpoint and raises KeyboardInterrupt."""
-        cfg = self.config
-        until = int(cfg.iterations if until is None else until)
-        log_every = int(cfg.log_every if log_every is None else log_every)
-        out = Path(out_dir) if out_dir is not None else None
-        if out is not None:
-            out.mkdir(parents=True, exist_ok=True)
-        interrupted = []
-        old_handler = None
-        try:
-            old_handler = signal.signal(signal.SIGINT, lambda *a: interrupted.append(1))
-        except ValueError:     # not the main thread: Ctrl-C is not ours to catch
-            old_handler = None
-        bar = None
-        if progress:
-            from tqdm import tqdm
-            bar = tqdm(total=until, initial=self.iteration, desc="train", unit="it", dynamic_ncols=True)
-        try:
-            t_last, it_last = time.perf_counter(), self.iteration
-            t0 = time.perf_counter()
-            base_elapsed = self.elapsed
-            while self.iteration < until and not interrupted:
-                it = self.iteration + 1
-                log_now = log_every > 0 and (it % log_every == 0 or it == until or it == 1)
-                stats = self.step(read_stats=log_now)
-                self.elapsed = base_elapsed + time.perf_counter() - t0
-                if bar is not None:
-                    bar.update(1)
-                if stats is not None:
-                    self.last_stats = dict(stats, iteration=self.iteration)
-                for hook in list(self.step_hooks):
-                    if hook(self, stats) is False:
-                        interrupted.append(1)
-                if stats is not None:
-                    now = time.perf_counter()
-                    ips = (self.iteration - it_last) / max(now - t_last, 1e-9)
-                    t_last, it_last = now, self.iteration
-                    rec = dict(iteration=self.iteration, loss=stats["loss"], l1=stats["l1"], ssim=stats["ssim"],
-                               psnr=stats["psnr"], vertices=self.n, triangles=self.m,
-                               sigma=self.sched.sigma(self.iteration), floor=self.sched.opacity_floor(self.iteration),
-                               supersample=stats["supersample"],
-                               sh_degree=self.sched.sh_degree(self.iteration), iterations_per_s=ips,
-                               elapsed=self.elapsed)
-                    rec.update({k: stats[k] for k in ("normal_loss", "normal_weight") if k in stats})
-                    if out is not None:
-                        with open(out / "log.jsonl", "a") as f:
-                            f.write(json.dumps(rec) + "\n")
-                if self.topology.events:
-                    if out is not None:
-                        with open(out / "log.jsonl", "a") as f:
-                            for ev in self.topology.events:
-                                f.write(json.dumps(ev) + "\n")
-                    self.topology.events = []
-                if bar is not None and stats is not None:
-                    bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}", tris=self.m)
-                if out is not None and cfg.checkpoint_every and self.iteration % cfg.checkpoint_every == 0:
-                    self.save_checkpoint(out / "checkpoint.npz")
-        finally:
-            if bar is not None:
-                bar.close()
-            if old_handler is not None:
-                signal.signal(signal.SIGINT, old_handler)
-        if out is not None:
-            self.save_checkpoint(out / "checkpoint.npz")
-        if interrupted:
-            raise KeyboardInterrupt
-        return self
+    def train(self, out_dir=None, progress=True, until=None, log_every=None, callbacks=()):
+        """Run to ``until`` (default: the configured iterations; calling again continues from
+        where it stopped). Logs to ``out_dir/log.jsonl`` every ``log_every`` iterations
+        (default: the config's); checkpoints every ``checkpoint_every`` iterations and at the
+        end; Ctrl-C (SIGINT) finishes the current step, writes a checkpoint and raises
+        KeyboardInterrupt. ``callbacks``: :class:`~.callbacks.TrainCallback` objects asked
+        before and told after every step. Returns ``self``."""
+        return TrainLoop(self, out_dir, progress, until, log_every, callbacks).run()
 
     # ------------------------------------------------------------------ checkpoints
     def state_arrays(self):
@@ -542,7 +396,7 @@ class Trainer:
 
     def topology_arrays(self):
         """The topology strategy's device state (running max weight, L1 ring), for checkpoints."""
-        return dict(max_weight_acc=self.topology.max_weight(self), l1_ring=self.topology.ring_values(self))
+        return dict(max_weight_acc=self.topology.max_weight(), l1_ring=self.topology.ring_values())
 
     def save_checkpoint(self, path):
         """Atomic (temp file + os.replace) checkpoint."""
@@ -553,7 +407,7 @@ class Trainer:
                     config=asdict(self.config), adapter=self.renderer.adapter_name,
                     view_rng="numpy default_rng([seed, epoch]).permutation per epoch (stateless)")
         arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
-        _atomic_write_bytes(path, lambda f: np.savez(f, **arrays))
+        atomic_write(path, lambda f: np.savez(f, **arrays))
 
     @classmethod
     def resume(cls, path, scene, config: TrainConfig | None = None, renderer=None, normals=None):
@@ -561,39 +415,16 @@ class Trainer:
         checkpoint's on :attr:`TrainConfig.RESUME_KEYS`; other fields (logging) come from it.
         ``normals``: the normal priors when they were given to the trainer directly (else they
         are read again from the config's ``normals`` folder)."""
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"--resume: no checkpoint at {path}")
-        try:
-            with np.load(path) as z:
-                arrays = {k: z[k] for k in z.files}
-            meta = json.loads(bytes(arrays.pop("meta")).decode())
-        except Exception as exc:
-            raise ValueError(f"--resume: {path} is not a readable tsplus checkpoint ({exc})") from None
-        if meta.get("version") != CHECKPOINT_VERSION:
-            raise ValueError(f"--resume: {path} has checkpoint version {meta.get('version')}, "
-                             f"this tsplus reads {CHECKPOINT_VERSION}")
-        defaults = asdict(TrainConfig())
-        saved = {**defaults, **meta["config"]}
-        saved["background"] = tuple(saved["background"])
-        if config is None:
-            config = TrainConfig(**saved)
-        else:
-            mine = asdict(config)
-            mine["background"] = tuple(mine["background"])
-            diff = [f"{k} {saved[k]!r} (checkpoint) vs {mine[k]!r}" for k in TrainConfig.RESUME_KEYS
-                    if saved.get(k) != mine.get(k)]
-            if diff:
-                raise ValueError(f"--resume: the run's settings differ from the checkpoint's: {'; '.join(diff)}")
+        arrays, meta = read_checkpoint(path)
+        config = resume_config(meta, config)
         sh = arrays["sh_planar"].transpose(1, 0, 2)
         init = TriangleModel(arrays["positions"], arrays["triangles"], sh,
                              np.full(arrays["positions"].shape[0], 0.5))
         t = cls(scene, config, renderer=renderer, model=init, normals=normals)
         t.iteration = int(meta["iteration"])
         t.elapsed = float(meta.get("elapsed", 0.0))
-        adam = {key: (arrays[f"exp_avg_{key}"], arrays[f"exp_avg_sq_{key}"]) for key in ("positions", "sh", "logits")}
-        t._set_model(arrays["positions"], arrays["triangles"], sh, arrays["logits"], adam=adam)
-        t.topology.load_state(t, meta.get("topology", {}), arrays.get("max_weight_acc"), arrays.get("l1_ring"))
+        t.set_state(VertexState.from_flat(arrays, arrays.get("max_weight_acc")))
+        t.topology.load_state(meta.get("topology", {}), arrays.get("l1_ring"))
         return t
 
     # ------------------------------------------------------------------ results

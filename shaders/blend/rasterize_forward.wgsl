@@ -1,0 +1,307 @@
+// Forward blend: one workgroup of 16 invocations per 16x16 tile; each invocation blends
+// the 16 pixels of one column, as four groups of 4 held in the lanes of vec4s, so every
+// triangle record read from workgroup memory serves 16 pixels. Triangles of the tile arrive in depth order in
+// batches of 128 staged in workgroup memory.
+//   I = max(0, min_k e_k(p))^sigma, alpha = min(0.99, o I), skip alpha < 1/255,
+//   stop before T would fall below 1e-4; C += c(p) alpha T; T *= 1 - alpha.
+// Outputs the image (C + T background), final T, per pixel (x) the number of pairs of
+// its tile up to and including the last one that contributed (for the backward pass)
+// and (y) the number of pairs it evaluated, and per triangle the largest alpha * T.
+//
+// A tile with more than PASS_PAIRS pairs is blended in several dispatches (lavapipe's loop
+// budget, see frame.wgsl); between them the pixel state lives in the output buffers:
+// C (without background) in image, T in final_t, (last, evaluated) in n_contrib with
+// the "stopped" flag in bit 31 of y.
+//
+// TRIANGLE_IDS (pipeline-overridable, host class RasterizeIds) makes the same walk the
+// triangle-ID pass: per pixel the triangle with the largest blending weight alpha * T, ties
+// to the front-most (the weight must grow strictly), 0xFFFFFFFF where none contributes.
+// It writes no image, max_weight or work (bind placeholders there); final_t holds its T
+// and n_contrib its (best triangle, best weight bits), with the "stopped" flag between
+// passes in bit 31 of y (weights are positive: the sign bit is free). Sharing the slots
+// keeps both variants within the 8 storage buffers per stage of WebGPU's default limits.
+#import frame
+#import triangle
+#import window4
+
+struct BlendPass {
+    begin: u32,   // window of pairs [begin, end) within every tile's range
+    end: u32,
+    first: u32,   // 1: no state to resume
+    last: u32,    // 1: write the final outputs
+}
+
+@group(0) @binding(0) var<uniform> params: FrameParams;
+@group(0) @binding(1) var<storage, read> ranges: array<vec2<u32>>;   // [tiles]
+@group(0) @binding(2) var<storage, read> pair_tris: array<u32>;      // [P] sorted
+@group(0) @binding(3) var<storage, read> tris: array<Tri2D>;         // [M]
+@group(0) @binding(4) var<storage, read_write> image: array<f32>;    // [H, W, 3]
+@group(0) @binding(5) var<storage, read_write> final_t: array<f32>;  // [H, W]
+// [H, W] (last, evaluated); with TRIANGLE_IDS (best triangle, best weight bits)
+@group(0) @binding(6) var<storage, read_write> n_contrib: array<vec2<u32>>;
+@group(0) @binding(7) var<storage, read_write> max_weight: array<atomic<u32>>;  // [M] f32 bits
+@group(0) @binding(8) var<uniform> pass_: BlendPass;
+// Work done, for the benchmark's FLOP count: [0] evaluations that reached the power
+// (ratio >= tau), [1] contributions.
+@group(0) @binding(9) var<storage, read_write> work: array<atomic<u32>>;  // [2]
+
+override TRIANGLE_IDS: bool = false;   // the triangle-ID pass instead of the image
+
+const BATCH: u32 = 128u;
+const STOPPED: u32 = 0x80000000u;
+const NONE: u32 = 0xFFFFFFFFu;     // triangle ID where no triangle contributes
+const THREADS: u32 = 16u;          // one invocation per column of the tile: 16 pixels, 4 groups of 4
+// Pairs per tile that one dispatch blends at most: each pair costs one trip of the blend
+// loop, each batch 1 + 2 * BATCH / THREADS more, within lavapipe's 65535 (frame.wgsl).
+const PASS_PAIRS: u32 = 256u * BATCH;
+
+// The staged records as raw vec4s (6 per triangle, the layout of Tri2D): a load from
+// workgroup memory is costly per instruction on CPU drivers, so each is a whole vec4.
+//   [0] s.x, s.y, opacity, tau   [1] g0, g1   [2] g2, depth, inradius
+//   [3] colour at s              [4] d colour / dx   [5] d colour / dy
+var<workgroup> staged: array<vec4<f32>, 768>;
+var<workgroup> batch_ids: array<u32, 128>;
+var<workgroup> batch_maxw: array<atomic<u32>, 128>;
+var<workgroup> num_done: atomic<u32>;
+var<workgroup> num_done_seen: u32;
+
+// Four pixels of one column, blended together in the lanes of vec4s.
+struct Px4 {
+    y: vec4<f32>,
+    T: vec4<f32>,
+    cr: vec4<f32>,
+    cg: vec4<f32>,
+    cb: vec4<f32>,
+    last: vec4<u32>,
+    evaluated: vec4<u32>,
+    done: vec4<bool>,
+    powered: vec4<u32>,
+    added: vec4<u32>,
+    best_w: vec4<f32>,   // TRIANGLE_IDS: the largest weight alpha * T so far
+    best: vec4<u32>,     // TRIANGLE_IDS: its triangle
+}
+
+// Window ratio min_k e_k at four pixels of a column: e_k = a_k + gy_k (y - s.y), with the
+// column's share a_k = 1 + gx_k (x - s.x) computed once per triangle.
+
+// Blend the staged triangle into the four pixels where live; returns the largest weight.
+fn blend4(q: ptr<function, Px4>, live: vec4<bool>, ratio: vec4<f32>, opacity: f32, c0: vec4<f32>,
+          cx: vec4<f32>, cy: vec4<f32>, dx: f32, sigma: f32, index: u32) -> f32 {
+    if (!any(live)) {
+        return 0.0;
+    }
+    (*q).powered += select(vec4<u32>(0u), vec4<u32>(1u), live);
+    let alpha = alpha4(ratio, opacity, sigma);
+    let valid = live & (alpha >= vec4<f32>(ALPHA_MIN));
+    let next_t = (*q).T * (1.0 - alpha);
+    let stop = valid & (next_t < vec4<f32>(T_MIN));
+    let add = valid & !stop;
+    let w = select(vec4<f32>(0.0), alpha * (*q).T, add);
+    (*q).added += select(vec4<u32>(0u), vec4<u32>(1u), add);
+    let dy = (*q).y - c0.w;   // c0.w carries s.y (see staging)
+    (*q).cr += (c0.x + cx.x * dx + cy.x * dy) * w;
+    (*q).cg += (c0.y + cx.y * dx + cy.y * dy) * w;
+    (*q).cb += (c0.z + cx.z * dx + cy.z * dy) * w;
+    (*q).T = select((*q).T, next_t, add);
+    (*q).last = select((*q).last, vec4<u32>(index), add);
+    if (any(stop)) {
+        (*q).done = (*q).done | stop;
+        (*q).evaluated = select((*q).evaluated, vec4<u32>(index), stop);   // pairs visited
+        atomicAdd(&num_done, dot(select(vec4<u32>(0u), vec4<u32>(1u), stop), vec4<u32>(1u)));
+    }
+    return max(max(w.x, w.y), max(w.z, w.w));
+}
+
+// TRIANGLE_IDS: the same weight and T update as blend4, keeping the triangle whose weight
+// beats the best so far.
+fn visit4(q: ptr<function, Px4>, live: vec4<bool>, ratio: vec4<f32>, opacity: f32, sigma: f32, id: u32) {
+    if (!any(live)) {
+        return;
+    }
+    let alpha = alpha4(ratio, opacity, sigma);
+    let valid = live & (alpha >= vec4<f32>(ALPHA_MIN));
+    let next_t = (*q).T * (1.0 - alpha);
+    let stop = valid & (next_t < vec4<f32>(T_MIN));
+    let add = valid & !stop;
+    let w = alpha * (*q).T;
+    let better = add & (w > (*q).best_w);
+    (*q).best_w = select((*q).best_w, w, better);
+    (*q).best = select((*q).best, vec4<u32>(id), better);
+    (*q).T = select((*q).T, next_t, add);
+    if (any(stop)) {
+        (*q).done = (*q).done | stop;
+        atomicAdd(&num_done, dot(select(vec4<u32>(0u), vec4<u32>(1u), stop), vec4<u32>(1u)));
+    }
+}
+
+@compute @workgroup_size(THREADS)
+fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    let px = wid.x * TILE + li;
+    let row0 = wid.y * TILE;
+    let tile = wid.y * params.tiles_x + wid.x;
+    let range = ranges[tile];
+    let x = f32(px) + 0.5;
+    let sigma = params.sigma;
+
+    var q: array<Px4, 4>;
+    var ndone = 0u;
+    for (var g = 0u; g < 4u; g++) {
+        let py = vec4<u32>(row0 + 4u * g) + vec4<u32>(0u, 1u, 2u, 3u);
+        let inside = (py < vec4<u32>(params.height)) & vec4<bool>(px < params.width);
+        q[g].y = vec4<f32>(py) + 0.5;
+        q[g].T = vec4<f32>(1.0);
+        q[g].done = !inside;
+        if (TRIANGLE_IDS) {
+            q[g].best_w = vec4<f32>(0.0);
+            q[g].best = vec4<u32>(NONE);
+        }
+        if (pass_.first == 0u) {
+            for (var k = 0u; k < 4u; k++) {
+                if (inside[k]) {
+                    let pix = py[k] * params.width + px;
+                    let st = n_contrib[pix];
+                    q[g].T[k] = final_t[pix];
+                    q[g].done[k] = (st.y & STOPPED) != 0u;
+                    if (TRIANGLE_IDS) {
+                        q[g].best[k] = st.x;
+                        q[g].best_w[k] = bitcast<f32>(st.y & ~STOPPED);
+                    } else {
+                        q[g].cr[k] = image[3u * pix];
+                        q[g].cg[k] = image[3u * pix + 1u];
+                        q[g].cb[k] = image[3u * pix + 2u];
+                        q[g].last[k] = st.x;
+                        q[g].evaluated[k] = st.y & ~STOPPED;
+                    }
+                }
+            }
+        }
+        ndone += dot(select(vec4<u32>(0u), vec4<u32>(1u), q[g].done), vec4<u32>(1u));
+    }
+    if (li == 0u) {
+        atomicStore(&num_done, 0u);
+    }
+    workgroupBarrier();
+    if (ndone != 0u) {
+        atomicAdd(&num_done, ndone);
+    }
+    var q0 = q[0];
+    var q1 = q[1];
+    var q2 = q[2];
+    var q3 = q[3];
+    let lo = min(range.x + pass_.begin, range.y);
+    let hi = min(range.x + pass_.end, range.y);
+    let num_batches = (hi - lo + BATCH - 1u) / BATCH;
+    for (var b = 0u; b < num_batches; b++) {
+        if (li == 0u) {
+            num_done_seen = atomicLoad(&num_done);
+        }
+        if (workgroupUniformLoad(&num_done_seen) == TILE * TILE) {
+            break;
+        }
+        let first = lo + b * BATCH;
+        let count = min(BATCH, hi - first);
+        for (var h = li; h < count; h += THREADS) {
+            let id = pair_tris[first + h];
+            let t = tris[id];
+            batch_ids[h] = id;
+            staged[6u * h] = vec4<f32>(t.s, t.opacity, t.tau);
+            staged[6u * h + 1u] = vec4<f32>(t.g0, t.g1);
+            staged[6u * h + 2u] = vec4<f32>(t.g2, t.depth, t.inradius);
+            if (!TRIANGLE_IDS) {
+                staged[6u * h + 3u] = vec4<f32>(t.color.xyz, t.s.y);
+                staged[6u * h + 4u] = t.dcolor_dx;
+                staged[6u * h + 5u] = t.dcolor_dy;
+                atomicStore(&batch_maxw[h], 0u);
+            }
+        }
+        workgroupBarrier();
+        // Uniform trip count, no break/continue: j stays uniform across the workgroup.
+        for (var j = 0u; j < count; j++) {
+            let w0 = staged[6u * j];
+            let w1 = staged[6u * j + 1u];
+            let w2 = staged[6u * j + 2u];
+            let dx = x - w0.x;
+            let a = vec3<f32>(1.0 + w1.x * dx, 1.0 + w1.z * dx, 1.0 + w2.x * dx);
+            let gy = vec3<f32>(w1.y, w1.w, w2.y);
+            let tau = vec4<f32>(w0.w);
+            let zero = vec4<f32>(0.0);
+            // ratio < tau means alpha < 1/255: no power needed
+            let r0 = ratio4(q0.y - w0.y, a, gy);
+            let r1 = ratio4(q1.y - w0.y, a, gy);
+            let r2 = ratio4(q2.y - w0.y, a, gy);
+            let r3 = ratio4(q3.y - w0.y, a, gy);
+            let l0 = !q0.done & (r0 > zero) & (r0 >= tau);
+            let l1 = !q1.done & (r1 > zero) & (r1 >= tau);
+            let l2 = !q2.done & (r2 > zero) & (r2 >= tau);
+            let l3 = !q3.done & (r3 > zero) & (r3 >= tau);
+            if (any(l0 | l1 | l2 | l3)) {
+                // TRIANGLE_IDS is a pipeline constant: the compiler keeps one branch
+                if (TRIANGLE_IDS) {
+                    let id = batch_ids[j];
+                    visit4(&q0, l0, r0, w0.z, sigma, id);
+                    visit4(&q1, l1, r1, w0.z, sigma, id);
+                    visit4(&q2, l2, r2, w0.z, sigma, id);
+                    visit4(&q3, l3, r3, w0.z, sigma, id);
+                } else {
+                    let c0 = staged[6u * j + 3u];
+                    let cx = staged[6u * j + 4u];
+                    let cy = staged[6u * j + 5u];
+                    let index = first - range.x + j + 1u;
+                    let wmax = max(max(blend4(&q0, l0, r0, w0.z, c0, cx, cy, dx, sigma, index),
+                                       blend4(&q1, l1, r1, w0.z, c0, cx, cy, dx, sigma, index)),
+                                   max(blend4(&q2, l2, r2, w0.z, c0, cx, cy, dx, sigma, index),
+                                       blend4(&q3, l3, r3, w0.z, c0, cx, cy, dx, sigma, index)));
+                    if (wmax > 0.0) {
+                        atomicMax(&batch_maxw[j], bitcast<u32>(wmax));
+                    }
+                }
+            }
+        }
+        workgroupBarrier();
+        for (var h = li; h < count && !TRIANGLE_IDS; h += THREADS) {
+            let w = atomicLoad(&batch_maxw[h]);
+            if (w != 0u) {
+                atomicMax(&max_weight[batch_ids[h]], w);
+            }
+        }
+    }
+    // pixels still running visited every pair of the window (stopped ones kept their index)
+    let visited = vec4<u32>(hi - range.x);
+    q0.evaluated = select(q0.evaluated, visited, !q0.done);
+    q1.evaluated = select(q1.evaluated, visited, !q1.done);
+    q2.evaluated = select(q2.evaluated, visited, !q2.done);
+    q3.evaluated = select(q3.evaluated, visited, !q3.done);
+    q[0] = q0;
+    q[1] = q1;
+    q[2] = q2;
+    q[3] = q3;
+    // One output loop for both variants (a helper function taking q by value made the ID
+    // pass twice as slow on lavapipe).
+    if (!TRIANGLE_IDS) {
+        let one = vec4<u32>(1u);
+        atomicAdd(&work[0], dot(q0.powered + q1.powered + q2.powered + q3.powered, one));
+        atomicAdd(&work[1], dot(q0.added + q1.added + q2.added + q3.added, one));
+    }
+    for (var g = 0u; g < 4u; g++) {
+        for (var k = 0u; k < 4u; k++) {
+            let py = row0 + 4u * g + k;
+            if (py < params.height && px < params.width) {
+                let pix = py * params.width + px;
+                let flags = select(0u, STOPPED, pass_.last == 0u && q[g].done[k]);
+                final_t[pix] = q[g].T[k];
+                if (TRIANGLE_IDS) {
+                    n_contrib[pix] = vec2<u32>(q[g].best[k], bitcast<u32>(q[g].best_w[k]) | flags);
+                } else {
+                    var out = vec3<f32>(q[g].cr[k], q[g].cg[k], q[g].cb[k]);
+                    if (pass_.last != 0u) {
+                        out += q[g].T[k] * params.background.xyz;
+                    }
+                    image[3u * pix] = out.x;
+                    image[3u * pix + 1u] = out.y;
+                    image[3u * pix + 2u] = out.z;
+                    n_contrib[pix] = vec2<u32>(q[g].last[k], q[g].evaluated[k] | flags);
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,146 @@
+"""Export (PLY / GLB / OBJ through trimesh), the lossless PLY reader, the glTF validator,
+connectivity, and bad input (one-line error, no partial file)."""
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from scenes import f32_exact, random_scene
+
+from tsplus_wgpu import MeshRenderer, TriangleModel
+from tsplus_wgpu.cli.main import main
+from tsplus_wgpu.apps.runs import load_run
+from tsplus_wgpu.io.export import connectivity, dc_colors, export, read_ply, to_uint8
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def model_cam():
+    model, cam = f32_exact(*random_scene(7, 64, 48, sh_k=16))
+    op = np.float32(np.random.default_rng(7).uniform(0.2, 1.0, model.num_vertices)).astype(np.float64)
+    return TriangleModel(model.positions, model.triangles, model.sh, op), cam
+
+
+@pytest.fixture(scope="module")
+def mr(ctx):
+    return MeshRenderer(ctx)
+
+
+def test_ply_round_trip_is_lossless(model_cam, tmp_path):
+    model, _ = model_cam
+    export(model, tmp_path / "m.ply")
+    back = read_ply(tmp_path / "m.ply")
+    for name in ("positions", "triangles", "sh", "opacity"):
+        assert np.array_equal(getattr(back, name), getattr(model, name)), name
+    t = trimesh.load(tmp_path / "m.ply", process=False)
+    assert len(t.vertices) == model.num_vertices and len(t.faces) == model.num_triangles
+    assert np.array_equal(t.visual.vertex_colors[:, :3], to_uint8(dc_colors(model)))
+
+
+@pytest.mark.parametrize("fmt", ["ply", "glb", "obj"])
+def test_export_load_render_equals_pre_export_render(model_cam, mr, tmp_path, fmt):
+    model, cam = model_cam
+    path = export(model, tmp_path / f"m.{fmt}")
+    back, _ = load_run(path)
+    assert back.num_vertices == model.num_vertices and back.num_triangles == model.num_triangles
+    t = trimesh.load(path, force="mesh", process=False)
+    assert len(t.vertices) == model.num_vertices and len(t.faces) == model.num_triangles
+    # GLB/OBJ colours are uint8: the pre-export render of those colours is the reference
+    # (the PLY gives the SH back, so its DC colour is exact)
+    col8 = dc_colors(model) if fmt == "ply" else to_uint8(dc_colors(model)) / 255.0
+    before = mr.render((model.positions, model.triangles, col8), cam).image
+    after = mr.render((back.positions, back.triangles, dc_colors(back)), cam).image
+    np.testing.assert_allclose(after, before, atol=1e-6)
+    if fmt == "ply":   # the full model too, with its SH
+        assert np.array_equal(mr.render(back, cam).image, mr.render(model, cam).image)
+
+
+def test_y_up_is_a_rotation_about_x(model_cam, tmp_path):
+    model, _ = model_cam
+    export(model, tmp_path / "m.glb", y_up=True)
+    t = trimesh.load(tmp_path / "m.glb", force="mesh", process=False)
+    np.testing.assert_allclose(t.vertices, model.positions * [1, -1, -1], rtol=1e-6, atol=1e-6)
+
+
+def _validator():
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("node is not installed (ci/setup.sh installs nodejs and npm)")
+    mod = ROOT / ".tools" / "node_modules" / "gltf-validator"
+    if not mod.is_dir():
+        pytest.skip("gltf-validator is not installed (ci/setup.sh: npm install --prefix .tools gltf-validator)")
+    return node
+
+
+def test_glb_passes_the_khronos_validator(model_cam, tmp_path):
+    node = _validator()
+    model, _ = model_cam
+    for y_up in (False, True):
+        path = export(model, tmp_path / f"m{int(y_up)}.glb", y_up=y_up)
+        out = subprocess.run([node, str(ROOT / "tests" / "gltf_validate.js"), str(path)], capture_output=True,
+                             text=True, timeout=60, env=dict(os.environ, NODE_PATH=str(ROOT / ".tools" / "node_modules")))
+        assert out.returncode == 0, out.stderr
+        report = json.loads(out.stdout)
+        assert report["issues"]["numErrors"] == 0, report["issues"]["messages"]
+        assert report["info"]["totalTriangleCount"] == model.num_triangles
+        assert report["info"]["totalVertexCount"] == model.num_vertices
+
+
+def test_connectivity_report():
+    tri = np.array([[0, 1, 2], [1, 2, 3], [1, 2, 4], [5, 6, 7]])   # a fan of 3 on edge (1, 2), one loose
+    c = connectivity(tri, 9)
+    assert c["components"] == 2 and c["non_manifold_edges"] == 1 and c["used_vertices"] == 8
+    assert c["shared_vertex_share"] == 0.75
+    assert c["triangles_per_vertex"] == pytest.approx(12 / 8)
+
+
+def _run_cli(argv, capsys):
+    rc = main(argv)
+    err = capsys.readouterr().err.strip()
+    return rc, err
+
+
+def test_bad_input_gives_one_line_and_no_partial_file(model_cam, tmp_path, capsys):
+    model, _ = model_cam
+    good = export(model, tmp_path / "m.ply")
+    cases = [
+        ([str(tmp_path / "missing"), "--out", str(tmp_path / "o.ply")], "no such run"),
+        ([str(good), "--format", "fbx", "--out", str(tmp_path / "o.fbx")], "unknown format"),
+        ([str(good), "--out", str(tmp_path / "nofolder" / "o.glb")], "does not exist"),
+    ]
+    empty = tmp_path / "empty.ply"
+    export_empty = TriangleModel(np.zeros((3, 3)), np.zeros((0, 3), int), np.zeros((3, 1, 3)), np.ones(3))
+    from tsplus_wgpu.io.export import encode_ply
+    empty.write_bytes(encode_ply(export_empty))
+    cases.append(([str(empty), "--out", str(tmp_path / "o2.ply")], "no triangles"))
+    if os.geteuid() != 0:
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        ro.chmod(0o500)
+        cases.append(([str(good), "--out", str(ro / "o.obj")], "permission denied"))
+    before = set(os.listdir(tmp_path))
+    for argv, msg in cases:
+        rc, err = _run_cli(["export"] + argv, capsys)
+        assert rc == 2, argv
+        assert len(err.splitlines()) == 1 and msg in err, err
+    assert set(os.listdir(tmp_path)) == before     # nothing written, no temp file left
+
+
+def test_failed_write_leaves_no_partial_file(model_cam, tmp_path, monkeypatch):
+    model, _ = model_cam
+    import tsplus_wgpu.io.export as ex
+    target = tmp_path / "m.glb"
+    target.write_bytes(b"old")
+
+    def boom(*a, **k):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(os, "fsync", boom)        # the atomic writer (io/atomic.py) fsyncs the temp file
+    with pytest.raises(ex.ExportError, match="No space left"):
+        export(model, target)
+    assert target.read_bytes() == b"old" and sorted(os.listdir(tmp_path)) == ["m.glb"]

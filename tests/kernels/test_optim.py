@@ -1,0 +1,189 @@
+"""shaders/optim/: each kernel alone against its float64 twin (tsplus_wgpu.reference.optim):
+train_activate, train_grads, opacity_reg (and its per-vertex sum), adam."""
+
+import numpy as np
+import pytest
+
+from tsplus_wgpu.gpu.stage import Scratch
+from tsplus_wgpu.kernels.optim import Adam, OpacityReg, OpacityRegGradient, TrainActivate, TrainGrads
+import tsplus_wgpu.reference.optim as twin
+
+
+def _run(ctx, record):
+    enc = ctx.device.create_command_encoder()
+    record(enc)
+    ctx.queue.submit([enc.finish()])
+
+
+@pytest.mark.parametrize("n,k", [(1, 1), (300, 4), (777, 16)])
+@pytest.mark.parametrize("reinvert", [False, True])
+def test_train_activate(ctx, n, k, reinvert):
+    rng = np.random.default_rng(n + k)
+    sp = rng.normal(size=(k, n, 3)).astype(np.float32)
+    w = rng.normal(scale=3.0, size=n).astype(np.float32)
+    w[:3] = [-30.0, 0.0, 30.0][: min(3, n)]
+    floor, floor_old = (0.35, 0.1) if reinvert else (0.2, None)
+    bsp, bw = ctx.upload(sp), ctx.upload(w)
+    bsh, bo = ctx.buffer(12 * n * k), ctx.buffer(4 * n)
+    stage = TrainActivate(ctx)
+    _run(ctx, lambda enc: stage(enc, bsp, bw, bsh, bo, n, k, floor, floor_old))
+    sh_ref, o_ref, w_ref = twin.train_activate(sp, w, floor, floor_old)
+    np.testing.assert_array_equal(ctx.read(bsh, np.float32, 3 * n * k).reshape(n, k, 3), sh_ref.astype(np.float32))
+    np.testing.assert_allclose(ctx.read(bo, np.float32, n), o_ref, rtol=0, atol=2e-6)
+    w_dev = ctx.read(bw, np.float32, n)
+    if reinvert:
+        # the logit is ill-conditioned where q is near 0 or 1: compare opacities there
+        o_dev = floor + (1 - floor) * twin.sigmoid(w_dev)
+        np.testing.assert_allclose(o_dev, o_ref, atol=3e-6)
+        mid = np.abs(w_ref) < 5
+        np.testing.assert_allclose(w_dev[mid], w_ref[mid], atol=2e-4)
+    else:
+        np.testing.assert_array_equal(w_dev, w)
+
+
+@pytest.mark.parametrize("n,k,active", [(5, 1, 1), (300, 16, 4), (513, 9, 9)])
+@pytest.mark.parametrize("use_reg", [False, True])
+def test_train_grads(ctx, n, k, active, use_reg):
+    rng = np.random.default_rng(7 * n + k)
+    w = rng.normal(scale=2.0, size=n).astype(np.float32)
+    vsh = rng.normal(size=(n, k, 3)).astype(np.float32)
+    vo = rng.normal(size=n).astype(np.float32)
+    reg = np.zeros((n, 4), np.float32)
+    reg[:, 0] = rng.normal(size=n)
+    floor = 0.3
+    bvsp, bvw = ctx.buffer(12 * n * k), ctx.buffer(4 * n)
+    stage = TrainGrads(ctx)
+    _run(ctx, lambda enc: stage(enc, ctx.upload(w), ctx.upload(vsh), ctx.upload(vo), ctx.upload(reg), bvsp, bvw,
+                                n, k, active, floor, use_reg))
+    vsp_ref, vw_ref = twin.train_grads(w, vsh, vo, floor, active, reg[:, 0] if use_reg else None)
+    vsp = ctx.read(bvsp, np.float32, 3 * n * k).reshape(k, n, 3)
+    np.testing.assert_array_equal(vsp, vsp_ref.astype(np.float32))
+    assert not np.any(vsp[active:])
+    np.testing.assert_allclose(ctx.read(bvw, np.float32, n), vw_ref, rtol=1e-5, atol=1e-7)
+
+
+def _reg_case(m):
+    rng = np.random.default_rng(m)
+    n = max(3, m // 3)
+    tri = np.stack([rng.choice(n, 3, replace=False) for _ in range(m)]).astype(np.int64)
+    op = rng.choice([0.2, 0.5, 0.9], size=n).astype(np.float32)   # many ties
+    return tri, op, n
+
+
+@pytest.mark.parametrize("m", [1, 50, 5000])
+def test_opacity_reg(ctx, m):
+    tri, op, _ = _reg_case(m)
+    stage = OpacityReg(ctx)
+    vals = ctx.buffer(16 * 3 * m)
+    _run(ctx, lambda enc: stage(enc, ctx.upload(tri.astype(np.uint32)), ctx.upload(op), vals, m, 1.9e-6))
+    got = ctx.read(vals, np.float32, 12 * m).reshape(3 * m, 4)
+    want = twin.opacity_reg(tri, op, 1.9e-6)
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=0)
+    assert np.count_nonzero(got[:, 0]) == m                 # one corner per triangle (ties resolved)
+
+
+@pytest.mark.parametrize("m", [1, 50, 5000])
+def test_opacity_reg_gradient_matches_twin(ctx, m):
+    tri, op, n = _reg_case(m)
+    reg = OpacityRegGradient(ctx, Scratch(ctx))
+    reg.set_topology(tri)
+    vals, out = ctx.buffer(16 * 3 * m), ctx.buffer(16 * n)
+    btri = ctx.upload(tri.astype(np.uint32))
+    _run(ctx, lambda enc: reg.record(enc, btri, ctx.upload(op), vals, out, 1.9e-6))
+    got = ctx.read(out, np.float32, 4 * n).reshape(n, 4)
+    want = twin.opacity_reg_gradient(tri, op, 1.9e-6, n)
+    np.testing.assert_allclose(got[:, 0], want, rtol=1e-5, atol=1e-15)
+    assert not np.any(got[:, 1:])
+
+
+# ---------------------------------------------------------------------- adam
+
+@pytest.fixture(scope="module")
+def adam(ctx):
+    return Adam(ctx)
+
+
+def _state(ctx, p):
+    n = len(p)
+    bp, bm, bv = ctx.upload(p.astype(np.float32)), ctx.buffer(4 * n), ctx.buffer(4 * n)
+    enc = ctx.device.create_command_encoder()
+    enc.clear_buffer(bm)
+    enc.clear_buffer(bv)
+    ctx.queue.submit([enc.finish()])
+    return bp, bm, bv
+
+
+def _rel(a, b):
+    return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-300)) if len(b) else 0.0
+
+
+@pytest.mark.parametrize("n,max_dim", [(0, None), (1, None), (255, None), (257, None), (70_001, None),
+                                       (3_000_000, None), (3_000_000, 1000), (100_000, 7)])
+def test_adam(ctx, adam, n, max_dim):
+    """Several steps with changing lr; max_dim forces the 2-D grid (3M elements -> 12 x 977 groups)."""
+    rng = np.random.default_rng(n)
+    p = rng.standard_normal(n).astype(np.float32)
+    bp, bm, bv = _state(ctx, p)
+    rp, rm, rv = p.astype(np.float64), np.zeros(n), np.zeros(n)
+    steps = 3 if n > 100_000 else 6
+    for step in range(1, steps + 1):
+        g = (rng.standard_normal(n) * 10.0 ** rng.uniform(-3, 1)).astype(np.float32)
+        lr = 1e-3 * step
+        enc = ctx.device.create_command_encoder()
+        adam.record(enc, bp, ctx.upload(g), bm, bv, n, lr, step, max_dim=max_dim)
+        ctx.queue.submit([enc.finish()])
+        rp, rm, rv = twin.adam(rp, g, rm, rv, lr, step)
+    assert _rel(ctx.read(bp, np.float32, n), rp) <= 1e-6
+    assert _rel(ctx.read(bm, np.float32, n), rm) <= 1e-6
+    assert _rel(ctx.read(bv, np.float32, n), rv) <= 1e-6
+
+
+def test_adam_defaults_are_the_shaders():
+    assert (twin.BETA1, twin.BETA2, twin.ADAM_EPS) == (0.9, 0.999, 1e-15)
+
+
+def test_adam_groups_share_a_buffer(ctx, adam):
+    """Two groups (different lr, different step counts) in one buffer; nothing outside is touched."""
+    rng = np.random.default_rng(7)
+    n = 1000
+    p = rng.standard_normal(n).astype(np.float32)
+    g = rng.standard_normal(n).astype(np.float32)
+    bp, bm, bv = _state(ctx, p)
+    bg = ctx.upload(g)
+    enc = ctx.device.create_command_encoder()
+    adam.record(enc, bp, bg, bm, bv, 300, 0.01, 1, offset=100)
+    adam.record(enc, bp, bg, bm, bv, 200, 0.5, 4, offset=600)
+    ctx.queue.submit([enc.finish()])
+    out = ctx.read(bp, np.float32, n)
+    z = np.zeros(n)
+    e1 = twin.adam(p[100:400], g[100:400], z[:300], z[:300], 0.01, 1)[0]
+    e2 = twin.adam(p[600:800], g[600:800], z[:200], z[:200], 0.5, 4)[0]
+    assert _rel(out[100:400], e1) <= 1e-6 and _rel(out[600:800], e2) <= 1e-6
+    untouched = np.r_[0:100, 400:600, 800:1000]
+    assert np.array_equal(out[untouched], p[untouched])
+    assert np.all(ctx.read(bm, np.float32, n)[untouched] == 0)
+
+
+def test_adam_zero_grad_and_first_step(ctx, adam):
+    n = 513
+    p = np.random.default_rng(8).standard_normal(n).astype(np.float32)
+    bp, bm, bv = _state(ctx, p)
+    g = np.zeros(n, np.float32)
+    g[::2] = np.random.default_rng(9).standard_normal(len(g[::2]))
+    enc = ctx.device.create_command_encoder()
+    adam.record(enc, bp, ctx.upload(g), bm, bv, n, 0.1, 1)
+    ctx.queue.submit([enc.finish()])
+    out = ctx.read(bp, np.float32, n)
+    assert np.array_equal(out[1::2], p[1::2])                          # zero gradient: no move, no NaN
+    np.testing.assert_allclose(out[::2], p[::2] - 0.1 * np.sign(g[::2]), rtol=0, atol=1e-6)   # |step| = lr
+
+
+def test_adam_bad_arguments(ctx, adam):
+    b = ctx.buffer(64)
+    enc = ctx.device.create_command_encoder()
+    with pytest.raises(ValueError):
+        adam.record(enc, b, b, b, b, 17, 0.1, 1)            # buffer too small
+    with pytest.raises(ValueError):
+        adam.record(enc, b, b, b, b, 4, 0.1, 0)             # step is 1-based
+    with pytest.raises(ValueError):
+        twin.adam(np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), 0.1, 0)

@@ -1,0 +1,102 @@
+"""Kernels of shaders/reduce/, each alone on uploaded inputs, against its float64 twin
+(tsplus_wgpu/reference/reduce.py): max_reduce exactly; segment_up / segment_down / the
+composed SegmentSum: keys exactly, sums to float32 rounding (and bit for bit against the
+twin run in float32, which adds in the kernels' order)."""
+
+import numpy as np
+import pytest
+
+from tsplus_wgpu.kernels.reduce import MaxReduce, SegmentDown, SegmentSum, SegmentUp
+from tsplus_wgpu.gpu import Scratch
+from tsplus_wgpu.reference import reduce as twin
+
+CHUNK = twin.CHUNK
+
+
+def _run(ctx, record):
+    enc = ctx.device.create_command_encoder()
+    record(enc)
+    ctx.queue.submit([enc.finish()])
+
+
+def _segments(seed, n, width, num_keys, run=None):
+    """Sorted keys [n] (runs of random lengths, some keys absent), a permutation index [n]
+    and values [n, width, 4] float32."""
+    rng = np.random.default_rng(seed)
+    if run is None:
+        keys = np.sort(rng.integers(0, num_keys, n)).astype(np.uint32)
+    else:                                   # runs of exactly `run` elements
+        keys = (np.arange(n) // run).astype(np.uint32)
+    index = rng.permutation(n).astype(np.uint32)
+    vals = rng.normal(size=(n, width, 4)).astype(np.float32)
+    return keys, index, vals
+
+
+def _close(got, want, vals, n):
+    """Sums of up to n float32 terms of size |vals|: float32 rounding allows ~n * eps * max|v|."""
+    tol = 4 * max(n, 1) * np.finfo(np.float32).eps * float(np.abs(vals).max(initial=0))
+    np.testing.assert_allclose(got, want, rtol=0, atol=tol)
+
+
+@pytest.mark.parametrize("n", [1, 255, 256, 257, 5000])
+def test_max_reduce(ctx, n):
+    rng = np.random.default_rng(n)
+    values = rng.integers(0, 2**32 - 1, n, dtype=np.uint64).astype(np.uint32)
+    values_buf = ctx.upload(np.concatenate([values, np.full(3, 2**32 - 1, np.uint32)]), "values")   # beyond n: ignored
+    result = ctx.buffer(16, "result")
+    k = MaxReduce(ctx)
+    _run(ctx, lambda enc: k(enc, values_buf, result, n))
+    assert ctx.read(result, np.uint32, 1)[0] == twin.max_reduce(values, n)
+
+
+@pytest.mark.parametrize("n,width,gather,num_keys,run", [(1000, 5, True, 40, None), (3 * CHUNK + 7, 2, False, 5, None),
+                                                         (777, 1, True, 0, 1), (640, 2, True, 0, 200)])
+def test_segment_up(ctx, n, width, gather, num_keys, run):
+    keys, index, vals = _segments(n, n, width, num_keys, run)
+    nc = (n + CHUNK - 1) // CHUNK
+    bufs = [ctx.upload(a, name) for a, name in ((keys, "keys_in"), (index, "index"), (vals, "vals_in"))]
+    keys_out, vals_out = ctx.buffer(4 * nc, "keys_out"), ctx.buffer(16 * width * nc, "vals_out")
+    k = SegmentUp(ctx)
+    _run(ctx, lambda enc: k(enc, *bufs, keys_out, vals_out, n, width, gather))
+    want_k, want_v = twin.segment_up(keys, index, vals, n, width, gather)
+    got_v = ctx.read(vals_out, np.float32, 4 * width * nc).reshape(nc, width, 4)
+    np.testing.assert_array_equal(ctx.read(keys_out, np.uint32, nc), want_k)
+    _close(got_v, want_v, vals, CHUNK)
+    np.testing.assert_array_equal(got_v, twin.segment_up(keys, index, vals, n, width, gather, np.float32)[1])
+
+
+@pytest.mark.parametrize("n,width,gather,top,num_keys,run", [
+    (1000, 5, True, False, 40, None), (1000, 2, False, True, 40, None), (CHUNK, 1, True, True, 3, None),
+    (640, 2, True, False, 0, 200)])
+def test_segment_down(ctx, n, width, gather, top, num_keys, run):
+    keys, index, vals = _segments(n + 1, n, width, num_keys, run)
+    num_keys = int(keys.max()) + 1
+    out0 = np.random.default_rng(1).normal(size=(num_keys, width, 4)).astype(np.float32)   # the coarser levels' totals
+    bufs = [ctx.upload(a, name) for a, name in ((keys, "keys_in"), (index, "index"), (vals, "vals_in"))]
+    out = ctx.upload(out0, "out")
+    k = SegmentDown(ctx)
+    _run(ctx, lambda enc: k(enc, *bufs, out, n, width, gather, top))
+    got = ctx.read(out, np.float32, out0.size).reshape(out0.shape)
+    _close(got, twin.segment_down(keys, index, vals, out0, n, width, gather, top), vals, n if top else CHUNK)
+    np.testing.assert_array_equal(got, twin.segment_down(keys, index, vals, out0, n, width, gather, top, np.float32))
+
+
+@pytest.mark.parametrize("n,width,num_keys,run", [(0, 2, 4, None), (50, 1, 7, None), (20000, 2, 300, None),
+                                                  (9000, 5, 0, 9000), (CHUNK * CHUNK + 1, 1, 0, 3)])
+def test_segment_sum(ctx, n, width, num_keys, run):
+    """SegmentSum (segment_up levels, then segment_down from the coarsest) against the twin
+    composed the same way, and against a plain per-key sum; keys without elements get zero."""
+    keys, index, vals = _segments(n + 2, n, width, num_keys, run)
+    num_keys = max(num_keys, int(keys.max(initial=0)) + 1) + 2
+    ss = SegmentSum(ctx, Scratch(ctx), "test_sum")
+    bufs = [ctx.upload(a if a.size else np.zeros(4, a.dtype), name) for a, name in ((keys, "keys"), (index, "index"),
+                                                                                   (vals, "vals"))]
+    out = ctx.buffer(16 * width * num_keys, "out")
+    _run(ctx, lambda enc: ss.record(enc, *bufs, n, width, out))
+    got = ctx.read(out, np.float32, 4 * width * num_keys).reshape(num_keys, width, 4)
+    want = twin.segment_sum(keys, index, vals, n, width, num_keys)
+    plain = np.zeros((num_keys, width, 4))
+    np.add.at(plain, keys, vals[index].astype(np.float64))
+    np.testing.assert_allclose(want, plain, rtol=0, atol=1e-9)
+    _close(got, want, vals, max(np.bincount(keys).max(initial=0), 1) if n else 1)
+    np.testing.assert_array_equal(got, twin.segment_sum(keys, index, vals, n, width, num_keys, np.float32))

@@ -1,0 +1,87 @@
+"""Trainer.train(callbacks=...): the benchmarks' hook on the real loop (profiled steps on request,
+one info per step, continuing with ``until``), and the vertex state / pure topology operations."""
+
+import numpy as np
+import pytest
+
+from tsplus_wgpu.train import TrainCallback, VertexState
+from tsplus_wgpu.train.profile import STAGES
+from tsplus_wgpu.train.strategy import densify, prune
+
+SCALED_500 = dict(quick_topology_epochs=0, quick_opacity_lr_scale=1)   # densify at 10 (tests/test_train_topology)
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    from tsplus_wgpu.data import load_procedural
+    return load_procedural("tiny")
+
+
+class Recorder(TrainCallback):
+    def __init__(self, profile):
+        self.profile, self.asked, self.infos = set(profile), [], []
+
+    def wants_profile(self, trainer, it):
+        self.asked.append((it, trainer.iteration))
+        return it in self.profile
+
+    def after_step(self, trainer, it, info):
+        assert trainer.iteration == it
+        self.infos.append(info)
+
+
+def test_callbacks_see_every_step_and_profile_on_request(renderer, tiny):
+    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    cfg = TrainConfig(iterations=300, quick=True, seed=3, log_every=0, **SCALED_500)
+    plain = Trainer(tiny, cfg, renderer=renderer).train(progress=False, until=12)
+    t = Trainer(tiny, cfg, renderer=renderer)
+    cb, quiet = Recorder({3, 10}), TrainCallback()
+    t.train(progress=False, until=7, callbacks=[cb, quiet])
+    t.train(progress=False, until=12, callbacks=[cb])          # continues where it stopped
+    assert t.iteration == 12 and [it for it, _ in cb.asked] == list(range(1, 13))
+    assert all(before == it - 1 for it, before in cb.asked)
+    assert [i["iteration"] for i in cb.infos] == list(range(1, 13))
+    for info in cb.infos:
+        it = info["iteration"]
+        assert info["profiled"] == (it in {3, 10})
+        assert info["topology"] == t.is_topology_step(it) == (it == 10)
+        assert (info["step_times"] is None) == (it not in {3, 10})
+        assert info["vertices"] > 0
+    assert set(cb.infos[9]["step_times"]) == set(STAGES) | {"wall", "other"}
+    assert cb.infos[9]["vertices"] > cb.infos[8]["vertices"]     # the densify step
+    assert t.profile_method in ("timestamp queries", "host timing (per-stage submit + queue wait)")
+    a, b = plain.state_arrays(), t.state_arrays()                # profiling and callbacks change nothing
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_state_round_trip_and_pure_topology_ops(renderer, tiny):
+    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    t = Trainer(tiny, TrainConfig(iterations=300, quick=True, seed=1, log_every=0, **SCALED_500), renderer=renderer)
+    t.train(progress=False, until=3)
+    s = t.read_state()
+    assert (s.n, s.m, s.k) == (t.n, t.m, t.k) and s.max_weight.shape == (t.m,)
+    before = t.state_arrays()
+    t.set_state(s)                                               # installing what was read changes nothing
+    after = t.state_arrays()
+    for k in before:
+        np.testing.assert_array_equal(before[k], after[k], err_msg=k)
+    # prune: the triangles kept, unused vertices gone, rows of every per-vertex array moved together
+    drop = np.zeros(s.m, bool)
+    drop[: s.m // 2] = True
+    p = prune(s, drop)
+    assert p.m == s.m - drop.sum() and p.triangles.max() == p.n - 1
+    old = np.unique(s.triangles[~drop])
+    for key, arr in p.vertex_arrays().items():
+        np.testing.assert_array_equal(arr, getattr(s, key)[old], err_msg=key)
+    np.testing.assert_array_equal(p.max_weight, s.max_weight[~drop])
+    # densify: one chosen triangle -> 4 children, 3 midpoints whose rows are edge means
+    d = densify(s.astype(np.float64), np.array([0]), floor=0.0)
+    assert (d.n, d.m) == (s.n + 3, s.m + 3)
+    c0, c1, c2 = s.triangles[0]
+    edges = ((c0, c1), (c1, c2), (c2, c0))
+    for key in ("positions", "exp_avg_positions"):
+        arr = getattr(s, key).astype(np.float64)
+        want = {tuple(0.5 * (arr[i] + arr[j])) for i, j in edges}
+        assert {tuple(x) for x in getattr(d, key)[s.n:]} == want, key
+    assert isinstance(d, VertexState) and d.max_weight.shape == (d.m,)

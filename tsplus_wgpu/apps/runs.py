@@ -1,0 +1,105 @@
+"""Loading what ``tsplus train`` wrote: a run folder (``mesh.ply``, ``checkpoint.npz``,
+``config.json``), a checkpoint, or any mesh file, as a :class:`~tsplus_wgpu.TriangleModel`.
+Turning a checkpoint's logits into opacities needs the run's opacity-floor schedule, so this
+lives above training; :mod:`tsplus_wgpu.io.export` (writing and reading mesh files) does not
+depend on it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..io.export import ExportError, read_mesh, read_ply
+from ..types import TriangleModel
+
+
+def checkpoint_model(path):
+    """(TriangleModel with activated opacity, config dict) from a trainer checkpoint."""
+    from ..train.schedules import Schedule
+    try:
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(bytes(arrays.pop("meta")).decode())
+        cfg = meta["config"]
+        sched = Schedule(total=int(cfg["iterations"]), indoor=bool(cfg.get("indoor")), quick=bool(cfg.get("quick")))
+        floor = sched.opacity_floor(int(meta["iteration"]))
+        logits = arrays["logits"].astype(np.float64)
+        opacity = floor + (1.0 - floor) / (1.0 + np.exp(-logits))
+        sh = arrays["sh_planar"].transpose(1, 0, 2)
+        opacity = np.clip(opacity, 0.0, 1.0).astype(np.float32)   # float32 like every other parameter
+        model = TriangleModel(arrays["positions"], arrays["triangles"], sh, opacity)
+    except ExportError:
+        raise
+    except Exception as exc:
+        raise ExportError(f"{path}: not a readable tsplus checkpoint ({exc})") from None
+    return model, cfg
+
+
+def load_run(path):
+    """Load what ``tsplus train`` wrote, or a mesh file.
+
+    ``path`` may be a run folder (its ``mesh.ply``, the cleaned opaque mesh, with the full SH
+    and opacity of ``checkpoint.npz`` attached to the vertices they came from when the
+    checkpoint is there), a PLY / GLB / OBJ file, or a ``checkpoint.npz`` (every triangle, no
+    final cleanup). Returns ``(TriangleModel, info dict)`` with ``info['scene']`` the run's
+    scene argument when known."""
+    path = Path(path)
+    if not path.exists():
+        raise ExportError(f"{path}: no such run folder or mesh file")
+    info = {"source": str(path)}
+    if path.is_dir():
+        cfg_path = path / "config.json"
+        if cfg_path.is_file():
+            try:
+                cfg = json.loads(cfg_path.read_text())
+                info["scene"] = cfg.get("extra", {}).get("scene")
+                info["downscale"] = cfg.get("extra", {}).get("downscale", 1)
+                info["background"] = cfg.get("background")
+            except Exception:
+                pass
+        mesh_path, ckpt = path / "mesh.ply", path / "checkpoint.npz"
+        if not mesh_path.is_file():
+            if ckpt.is_file():
+                model, _ = checkpoint_model(ckpt)
+                info["from"] = "checkpoint.npz (no mesh.ply: every triangle, no final cleanup)"
+                return model, info
+            raise ExportError(f"{path}: not a tsplus run (no mesh.ply or checkpoint.npz)")
+        mesh = read_ply(mesh_path)
+        info["from"] = "mesh.ply"
+        if ckpt.is_file():
+            full, _ = checkpoint_model(ckpt)
+            attached = _attach(mesh, full)
+            if attached is not None:
+                info["from"] = "mesh.ply with SH and opacity from checkpoint.npz"
+                return attached, info
+        return mesh, info
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        model, cfg = checkpoint_model(path)
+        info["scene"] = cfg.get("extra", {}).get("scene")
+        info["from"] = "checkpoint"
+        return model, info
+    if suffix == ".ply":
+        info["from"] = "ply"
+        return read_ply(path), info
+    if suffix in (".glb", ".gltf", ".obj", ".off", ".stl"):
+        info["from"] = suffix[1:]
+        return read_mesh(path), info
+    raise ExportError(f"{path}: unknown file type {suffix or '(none)'}; expected a run folder, .ply, .glb, .obj "
+                      f"or checkpoint .npz")
+
+
+def _attach(mesh: TriangleModel, full: TriangleModel):
+    """The cleaned mesh with SH and opacity of the checkpoint vertices at the same (float32)
+    positions; None when they do not all match."""
+    key = lambda p: np.ascontiguousarray(p.astype(np.float32)).view(np.dtype((np.void, 12))).ravel()  # noqa: E731
+    kf, km = key(full.positions), key(mesh.positions)
+    order = np.argsort(kf, kind="stable")
+    pos = np.searchsorted(kf[order], km)
+    pos = np.clip(pos, 0, len(kf) - 1)
+    idx = order[pos]
+    if len(kf) == 0 or not np.all(kf[idx] == km):
+        return None
+    return TriangleModel(full.positions[idx], mesh.triangles, full.sh[idx], full.opacity[idx])

@@ -1,0 +1,34 @@
+"""``tsplus adapters``: list the GPU adapters wgpu sees, with features and the chosen one."""
+
+from __future__ import annotations
+
+import os
+
+from ..errors import UserError
+
+
+def add_adapter_arg(p):
+    """The ``--adapter`` option of the commands that choose a GPU."""
+    p.add_argument("--adapter", default=None,
+                   help="GPU adapter to use, matched against its name (e.g. 'nvidia', 'lavapipe'); "
+                        "default: TSPLUS_ADAPTER or the best one (discrete GPU first)")
+
+
+def add_parser(sub):
+    return sub.add_parser("adapters", help="list the GPU adapters wgpu sees, with features and the chosen one")
+
+
+def run(args):
+    from ..gpu.context import LAVAPIPE_HINT, adapter_description, list_adapters, select_adapter
+    adapters = list_adapters()
+    if not adapters:
+        raise UserError(LAVAPIPE_HINT)
+    chosen = select_adapter(os.environ.get("TSPLUS_ADAPTER"))
+    for a in adapters:
+        mark = "*" if a is chosen or a.info == chosen.info else " "
+        feats = set(a.features)
+        opt = [name for key, name in (("timestamp-query", "timestamps"), ("shader-float32-atomic", "float32-atomics"),
+                                      ("subgroup", "subgroups")) if key in feats]
+        print(f"{mark} {adapter_description(a)}  [{', '.join(opt) or 'no optional features'}]")
+    print("(* = used by default; set TSPLUS_ADAPTER or --adapter to choose)")
+    return 0

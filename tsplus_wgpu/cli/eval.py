@@ -1,0 +1,148 @@
+"""``tsplus eval``: mesh-based novel-view metrics (held-out views drawn by the depth-tested
+mesh renderer), the splatting renderer's PSNR beside them, the connectivity report and the
+Poisson baseline."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..apps.evaluate import evaluate_mesh, normal_error_summary, poisson_baseline
+from ..data import load_scene_arg
+from ..errors import UserError
+from ..io.atomic import write_json
+from ..apps.runs import load_run
+from ..io.export import ExportError, connectivity, connectivity_line
+from ..types import TriangleModel
+
+
+def add_parser(sub):
+    p = sub.add_parser("eval", help="mesh-based novel-view metrics (PSNR/SSIM) with the depth-tested mesh renderer",
+                       description="Draw the held-out views of SCENE with the depth-tested mesh renderer (what an "
+                                   "engine shows) and report PSNR/SSIM per view and mean (table + JSON), "
+                                   "ground truth | render | error heat-map images, the trainer renderer's PSNR on "
+                                   "the same views and the connectivity report. `tsplus eval --baseline poisson "
+                                   "SCENE` evaluates a Poisson mesh of the scene's SfM points the same way.")
+    p.add_argument("inputs", nargs="+", metavar="RUN_OR_MESH SCENE",
+                   help="run folder or mesh file, then the scene (folder or procedural[:tiny|small|demo]); with "
+                        "--baseline only SCENE")
+    p.add_argument("--baseline", choices=["poisson"], default=None, help="evaluate a classical baseline instead")
+    p.add_argument("--out", default=None, help="output folder (default RUN/eval, or runs/eval-<name>)")
+    p.add_argument("--supersample", type=int, default=4, help="s x s supersampling (default 4, as the paper's eval)")
+    p.add_argument("--views", choices=["test", "train", "all"], default="test",
+                   help="which views (default test: the held-out ones; training views when there are none)")
+    p.add_argument("--downscale", type=int, default=1, help="shrink the scene's images (default 1)")
+    p.add_argument("--images", type=int, default=4, help="side-by-side images to write (default 4)")
+    p.add_argument("--no-splat", action="store_true", help="skip the trainer renderer's PSNR column")
+    p.add_argument("--interpolation", choices=["perspective", "linear"], default="perspective",
+                   help="colour interpolation: perspective-correct as engines (default) or linear in screen space "
+                        "as the splatting model")
+    p.add_argument("--poisson-depth", type=int, default=8, help="Poisson octree depth (default 8)")
+    p.add_argument("--normals", default=None, metavar="DIR",
+                   help="also report the mesh's normal error against these normal maps (the files and convention of "
+                        "`tsplus train --normals`) on the evaluated views that have one: mean 1 - <N, P> and mean "
+                        "angle, N the mesh's camera-space normal drawn opaque (sigma 1e-4, the normal loss's render)")
+    p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
+    return p
+
+
+def _table(rows, has_splat):
+    head = f"{'view':>6}  {'name':<24}{'PSNR':>8}{'SSIM':>8}" + (f"{'splat PSNR':>12}" if has_splat else "")
+    lines = [head]
+    for r in rows:
+        lines.append(f"{r['view']:>6}  {r['name'][:23]:<24}{r['psnr']:>8.2f}{r['ssim']:>8.3f}"
+                     + (f"{r.get('splat_psnr', float('nan')):>12.2f}" if has_splat else ""))
+    if rows:
+        mp = np.mean([r["psnr"] for r in rows])
+        ms = np.mean([r["ssim"] for r in rows])
+        extra = f"{np.mean([r['splat_psnr'] for r in rows]):>12.2f}" if has_splat else ""
+        lines.append(f"{'mean':>6}  {'':<24}{mp:>8.2f}{ms:>8.3f}{extra}")
+    return "\n".join(lines)
+
+
+def _inputs(args):
+    """``(run or mesh argument or None, scene argument)`` of the positional inputs."""
+    if args.baseline:
+        if len(args.inputs) != 1:
+            raise UserError("eval --baseline poisson: give only SCENE")
+        return None, args.inputs[0]
+    if len(args.inputs) != 2:
+        raise UserError("eval: expected RUN_OR_MESH SCENE (or --baseline poisson SCENE)")
+    return tuple(args.inputs)
+
+
+def _out_folder(args, run_arg):
+    """The output folder (created, writable): --out, RUN/eval, or runs/eval-<name>."""
+    if args.out:
+        out = Path(args.out)
+    elif run_arg and Path(run_arg).is_dir():
+        out = Path(run_arg) / "eval"
+    else:
+        name = "poisson" if args.baseline else Path(run_arg).stem
+        out = Path("runs") / f"eval-{name}"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot create the folder ({exc.strerror or exc})") from None
+    if not os.access(out, os.W_OK):
+        raise UserError(f"--out {out}: permission denied")
+    return out
+
+
+def run(args):
+    from ..render.mesh_renderer import MeshRenderer
+    if args.supersample < 1:
+        raise ValueError(f"--supersample: expected an integer >= 1, got {args.supersample}")
+    run_arg, scene_arg = _inputs(args)
+    t0 = time.perf_counter()
+    if run_arg is not None:
+        model, info = load_run(run_arg)
+        source = info.get("from")
+    scene = load_scene_arg(scene_arg, args.downscale)
+    if args.baseline:
+        tb = time.perf_counter()
+        model = poisson_baseline(scene, depth=args.poisson_depth)
+        source = f"Poisson reconstruction of {len(scene.points)} SfM points (depth {args.poisson_depth}) " \
+                 f"in {time.perf_counter() - tb:.1f}s"
+    # the exported mesh is drawn with its vertex colours: the SH DC term (view-independent), opaque
+    model = TriangleModel(model.positions, model.triangles, model.sh[:, :1], np.ones(model.num_vertices))
+    if model.num_triangles == 0:
+        raise ExportError(f"{run_arg or 'baseline'}: the mesh has no triangles; nothing to evaluate")
+    if args.views == "test":
+        views = list(scene.test_indices) or list(scene.train_indices)
+    elif args.views == "train":
+        views = list(scene.train_indices)
+    else:
+        views = list(range(len(scene.cameras)))
+    out = _out_folder(args, run_arg)
+    splat = None
+    mr = MeshRenderer(args.adapter)
+    if not args.no_splat:
+        from ..render.renderer import Renderer
+        splat = Renderer(mr.ctx)
+    conn = connectivity(model.triangles, model.num_vertices)
+    print(f"adapter: {mr.adapter_name}")
+    print(f"mesh: {source}: {model.num_vertices} vertices, {model.num_triangles} triangles")
+    print(connectivity_line(conn))
+    print(f"scene: {scene_arg}: {len(views)} {'held-out' if args.views == 'test' and scene.test_indices else args.views}"
+          f" views, {scene.cameras[0].width}x{scene.cameras[0].height}, supersampling {args.supersample}x"
+          f"{args.supersample}")
+    bg = tuple(float(x) for x in scene.background)
+    rows = evaluate_mesh(model, scene, views, mr, args.supersample, splat, out, args.images, bg, args.interpolation)
+    print(_table(rows, splat is not None))
+    res = dict(mesh=str(run_arg) if run_arg else "baseline:poisson", source=source, scene=scene_arg,
+               adapter=mr.adapter_name, supersample=args.supersample, interpolation=args.interpolation, views=rows,
+               mean_psnr=float(np.mean([r["psnr"] for r in rows])), mean_ssim=float(np.mean([r["ssim"] for r in rows])),
+               connectivity=conn, seconds=time.perf_counter() - t0)
+    if splat is not None:
+        res["mean_splat_psnr"] = float(np.mean([r["splat_psnr"] for r in rows]))
+        res["splat_note"] = "trainer renderer at sigma 1e-4, opacity 1, no supersampling"
+    if getattr(args, "normals", None):
+        res["normal_error"] = normal_error_summary(model, scene, views, args.normals, splat or mr.ctx)
+    write_json(out / "metrics.json", res)
+    print(f"mean render {np.mean([r['render_ms'] for r in rows]):.1f} ms/view; wrote {out}/metrics.json and "
+          f"view_*.png (ground truth | render | error)")
+    return 0

@@ -1,0 +1,219 @@
+"""``tsplus train``: train on a scene folder (or the built-in procedural scene) and write the
+opaque mesh, held-out metrics, test renders, the log and a resumable checkpoint.
+
+The options that set a :class:`~tsplus_wgpu.train.config.TrainConfig` field come from that
+field's metadata (:func:`~tsplus_wgpu.train.config.cli_options`): flag, help and default are
+declared once, there. Precedence: a flag on the command line, then the ``--config`` file, then
+the preset's default (:func:`~tsplus_wgpu.train.config.preset_defaults`), then the field's."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from ..io.atomic import write_bytes, write_image, write_json
+from ..train.config import TrainConfig, cli_options, preset_defaults
+
+#: flag value -> config value, for the fields whose flag does not take the value itself
+_FROM_FLAG = {"topology": lambda v: v == "on", "normals": lambda v: str(Path(v).resolve())}
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "train", help="train Triangle Splatting+ on a scene and export an opaque, vertex-coloured mesh",
+        description="Train on SCENE (a COLMAP / transforms.json / LLFF / photos folder; default: the built-in "
+                    "procedural scene, 'procedural:tiny|small|demo' to pick its size) and write to --out: "
+                    "mesh.ply (opaque, vertex colours from SH DC), metrics.json (held-out PSNR/SSIM), test "
+                    "renders, log.jsonl, config.json and checkpoint.npz (--resume continues it bit-identically). "
+                    "--normals DIR adds method.md's optional normal loss.")
+    p.add_argument("scene", nargs="?", default="procedural:small",
+                   help="scene folder, or procedural[:tiny|small|demo] (default procedural:small)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--config", default=None, metavar="FILE",
+                   help="JSON or TOML file with the keys of a run's config.json (iterations, quick, indoor, seed, "
+                        "max_vertices, densify_stop_rel, ...); flags given on the command line override it")
+    p.add_argument("--preset", choices=["paper", "quick"], default=None,
+                   help="paper: method.md's schedules as they are (30k-iteration constants); quick: every schedule "
+                        "scaled to --iterations (default paper)")
+    for name, flag, text, kwargs in cli_options():       # one option per TrainConfig field with a flag
+        p.add_argument(flag, dest=name, default=None, help=text, **kwargs)
+    p.add_argument("--downscale", type=int, default=1, help="shrink the images by this factor (default 1)")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.npz")
+    from ..train.ablations import ABLATIONS
+    p.add_argument("--ablation", choices=list(ABLATIONS), default=None,
+                   help="one of the paper's ablations (Tables 2-3): " + "; ".join(
+                       f"{k} = {v[1]}" + (f" ({', '.join(f'{a}={b}' for a, b in v[2].items())})" if v[2] else "")
+                       for k, v in ABLATIONS.items())
+                   + ". Sets those config keys (hard_prune, weight_prune, sigma_decay, sigma_final, opacity), which "
+                     "a --config file may also set; the ablation wins over the file. The pruning rows need "
+                     "--topology on (the default)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
+    from .view import add_train_view_args
+    add_train_view_args(p)
+    return p
+
+
+def _atomic_ply(path, positions, triangles, colors):
+    import trimesh
+    rgba = np.concatenate([np.round(np.clip(colors, 0, 1) * 255).astype(np.uint8),
+                           np.full((len(colors), 1), 255, np.uint8)], axis=1)
+    mesh = trimesh.Trimesh(vertices=np.asarray(positions, np.float64), faces=np.asarray(triangles, np.int64),
+                           vertex_colors=rgba, process=False)
+    write_bytes(path, mesh.export(file_type="ply"))
+
+
+def load_config_file(path):
+    """The keys of a ``--config`` file (JSON, or TOML by its ``.toml`` suffix), checked
+    against :class:`~tsplus_wgpu.train.config.TrainConfig`'s fields (``adapter``, written to
+    config.json, is ignored)."""
+    from dataclasses import fields
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"--config {path}: no such file")
+    try:
+        if path.suffix.lower() == ".toml":
+            import tomllib
+            data = tomllib.loads(path.read_text())
+        else:
+            data = json.loads(path.read_text())
+    except Exception as exc:
+        raise ValueError(f"--config {path}: not valid {'TOML' if path.suffix.lower() == '.toml' else 'JSON'} "
+                         f"({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"--config {path}: expected a table of settings")
+    known = {f.name for f in fields(TrainConfig)}
+    unknown = sorted(set(data) - known - {"adapter"})
+    if unknown:
+        raise ValueError(f"--config {path}: unknown keys {unknown}; known: {sorted(known)}")
+    data.pop("adapter", None)
+    return data
+
+
+def resolve_settings(args):
+    """The config keys of this invocation before the scene is known (flag > ``--config`` file
+    > preset default; ``background`` and ``extra`` are added by :func:`config_for_scene`).
+    Sets ``args.seed`` (the scene loader's seed) to the resolved seed."""
+    if args.downscale < 1:
+        raise ValueError(f"--downscale: expected an integer >= 1, got {args.downscale}")
+    file_cfg = load_config_file(args.config) if args.config else {}
+    quick = args.preset == "quick" if args.preset is not None else bool(file_cfg.get("quick", False))
+    settings = {**preset_defaults(quick), **file_cfg, "quick": quick}
+    for name, _, _, _ in cli_options():
+        value = getattr(args, name)
+        if value is not None:
+            settings[name] = _FROM_FLAG.get(name, lambda v: v)(value)
+    settings["indoor"] = bool(settings.get("indoor", False))
+    if getattr(args, "ablation", None):
+        from ..train.ablations import ablation_overrides
+        settings.update(ablation_overrides(args.ablation))
+    defaults = TrainConfig()
+    if settings["iterations"] < 1:
+        raise ValueError(f"--iterations: expected an integer >= 1, got {settings['iterations']}")
+    if settings.get("checkpoint_every", defaults.checkpoint_every) < 0:
+        raise ValueError(f"--checkpoint-every: expected >= 0, got {settings['checkpoint_every']}")
+    args.seed = settings.get("seed", defaults.seed)
+    return settings
+
+
+def config_for_scene(args, settings, scene):
+    """The run's :class:`TrainConfig`: ``settings`` with the scene's background unless set, and
+    the invocation noted in ``extra``."""
+    settings = dict(settings)
+    settings["background"] = tuple(float(x) for x in settings.get("background", scene.background))
+    settings["extra"] = {**settings.get("extra", {}), "scene": str(args.scene), "downscale": args.downscale,
+                         **({"ablation": args.ablation} if getattr(args, "ablation", None) else {}),
+                         **({"config_file": str(args.config)} if args.config else {})}
+    return TrainConfig(**settings)
+
+
+def _output_folder(args):
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a folder")
+    ckpt = out / "checkpoint.npz"
+    if not args.resume and ckpt.exists():
+        raise ValueError(f"--out {out}: holds a checkpoint already; add --resume to continue it or choose another "
+                         f"folder")
+    return out, ckpt
+
+
+def _start(args, cfg, scene, out, ckpt, t0):
+    """The trainer (new or resumed) with config.json written and the start printed."""
+    from ..render.renderer import Renderer
+    from ..train.trainer import Trainer
+    normal_maps = None
+    if cfg.normals:
+        from ..data.normals import load_normal_maps
+        normal_maps = load_normal_maps(scene, cfg.normals)
+    renderer = Renderer(args.adapter)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.resume:
+        trainer = Trainer.resume(ckpt, scene, cfg, renderer=renderer, normals=normal_maps)
+    else:
+        trainer = Trainer(scene, cfg, renderer=renderer, normals=normal_maps)
+        (out / "log.jsonl").unlink(missing_ok=True)
+    write_json(out / "config.json", dict(asdict(cfg), adapter=renderer.adapter_name))
+    print(f"adapter: {renderer.adapter_name}")
+    print(f"scene: {args.scene} ({len(scene.train_indices)} training / {len(scene.test_indices)} held-out views, "
+          f"{scene.cameras[0].width}x{scene.cameras[0].height}); model {trainer.n} vertices / {trainer.m} triangles; "
+          f"from iteration {trainer.iteration} to {cfg.iterations} (loaded in {time.perf_counter() - t0:.1f}s)")
+    if normal_maps is not None:
+        from ..train.schedules import NORMAL_LOSS_AFTER
+        print(f"{normal_maps.summary(len(scene.train_indices))}; normal loss weight "
+              f"{trainer.sched.normal_loss_weight(cfg.iterations)} from iteration "
+              f"{trainer.sched.at(NORMAL_LOSS_AFTER) + 1}")
+        for w in normal_maps.warnings:
+            print(f"warning: {w}")
+    return trainer
+
+
+def _finish(trainer, scene, out, psnr0):
+    """Evaluate, export the mesh, write metrics.json and the test renders, print the result."""
+    from ..train.schedules import SIGMA_FINAL
+    soft_psnr, soft_ssim, _ = trainer.evaluate()
+    pos, tri, col = trainer.final_mesh()
+    mesh_model = trainer.mesh_model(pos, tri, col)
+    views = list(scene.test_indices or trainer.train_views)
+    psnr_m, ssim_m, imgs = trainer.evaluate(mesh_model, sigma=SIGMA_FINAL, views=views)
+    _atomic_ply(out / "mesh.ply", pos, tri, col)
+    for v, img in zip(views[:4], imgs[:4]):
+        write_image(out / f"test_{v:03d}.png", np.concatenate([scene.images[v], img], axis=1))
+    metrics = dict(iterations=trainer.iteration, held_out_views=views, held_out_are_training_views=not scene.test_indices,
+                   mesh_psnr=psnr_m, mesh_ssim=ssim_m, model_psnr=soft_psnr, model_ssim=soft_ssim,
+                   initial_model_psnr=psnr0, mesh_vertices=int(len(pos)), mesh_triangles=int(len(tri)),
+                   model_vertices=trainer.n, model_triangles=trainer.m, train_seconds=trainer.elapsed,
+                   iterations_per_s=trainer.iteration / max(trainer.elapsed, 1e-9))
+    write_json(out / "metrics.json", metrics)
+    print(f"held-out PSNR {psnr_m:.2f} dB / SSIM {ssim_m:.3f} (opaque mesh: {len(pos)} vertices, {len(tri)} "
+          f"triangles); trained model before the final cleanup {soft_psnr:.2f} dB"
+          + (f" (initial {psnr0:.2f} dB)" if psnr0 is not None else ""))
+    print(f"wrote {out}/mesh.ply, metrics.json, log.jsonl, checkpoint.npz, test_*.png")
+
+
+def run(args):
+    from ..data import load_scene_arg
+    settings = resolve_settings(args)
+    out, ckpt = _output_folder(args)
+    t0 = time.perf_counter()
+    scene = load_scene_arg(args.scene, args.downscale, args.seed)
+    cfg = config_for_scene(args, settings, scene)
+    trainer = _start(args, cfg, scene, out, ckpt, t0)
+    from .view import attach_live_viewer
+    viewer = attach_live_viewer(trainer, args, scene)   # --view: the live window, drawn between steps
+    psnr0 = trainer.evaluate()[0] if trainer.iteration == 0 else None
+    try:
+        trainer.train(out_dir=out, progress=not args.no_progress)
+    except KeyboardInterrupt:
+        print(f"tsplus: interrupted at iteration {trainer.iteration}; checkpoint saved to {ckpt} "
+              f"(continue with --resume)")
+        return 130
+    finally:
+        if viewer is not None:
+            viewer.close()
+    _finish(trainer, scene, out, psnr0)
+    return 0

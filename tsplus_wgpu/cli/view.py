@@ -1,0 +1,205 @@
+"""``tsplus view`` and the ``--view`` option of ``tsplus train``: the command-line side of the
+viewer package (``viewer/`` in the checkout, ``tsplus_wgpu.viewer`` in the wheel)."""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def load_viewer():
+    """The viewer package: ``tsplus_wgpu.viewer`` when installed from a wheel, else the
+    checkout's ``viewer/`` folder (an editable install) loaded under that name."""
+    try:
+        return importlib.import_module("tsplus_wgpu.viewer")
+    except ImportError:
+        pass
+    package = Path(__file__).resolve().parent.parent
+    folder = next((c for c in (package / "viewer", package.parent / "viewer") if (c / "__init__.py").is_file()),
+                  package / "viewer")
+    if not (folder / "__init__.py").is_file():
+        raise ImportError("tsplus_wgpu.viewer is not installed and no viewer/ folder is next to the package; "
+                          "reinstall tsplus-wgpu")
+    spec = importlib.util.spec_from_file_location("tsplus_wgpu.viewer", folder / "__init__.py",
+                                                  submodule_search_locations=[str(folder)])
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["tsplus_wgpu.viewer"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+WALK_KEYS = ("W A S D walk, mouse drag or arrow keys look, Space jump, Shift run, R back to the start, N/B walk "
+             "from the next/previous scene camera")
+
+
+def add_parser(sub):
+    p = sub.add_parser("view", help="view a run folder, PLY, GLB or OBJ in a window (or render screenshots "
+                                    "headless)",
+                       description="Open PATH (a tsplus run folder, .ply, .glb, .obj or checkpoint .npz) in a "
+                                   "window: left drag orbits, right/middle drag pans, the wheel zooms, W A S D Q E "
+                                   "fly, F toggles mouse look, N/B (or ]/[) snap to the next/previous scene camera, "
+                                   "X wireframe, T soft splatting render vs opaque mesh, K screenshot, H HUD, "
+                                   "R reset, Esc quit. With --screenshot it renders one image offscreen (no "
+                                   "display needed). --walk: first-person walking instead (gravity and collision "
+                                   "against the mesh): " + WALK_KEYS + ".")
+    p.add_argument("path", help="run folder, .ply, .glb, .obj or checkpoint .npz")
+    p.add_argument("--scene", default=None, help="scene whose cameras to use (default: the one the run "
+                                                 "folder records)")
+    p.add_argument("--camera", type=int, default=None, help="start at (or render from) scene camera N")
+    p.add_argument("--screenshot", default=None, metavar="PNG", help="render one frame offscreen to PNG and exit")
+    p.add_argument("--size", default=None, metavar="WxH", help="canvas size (default: the camera's, at most "
+                                                               "1280 wide; 960x720 without cameras)")
+    p.add_argument("--splat", action="store_true", help="start with the soft splatting render (needs a model "
+                                                        "with opacity / SH)")
+    p.add_argument("--sigma", type=float, default=None, help="sigma of the splatting render (default: the run's "
+                                                             "final sigma)")
+    p.add_argument("--wireframe", action="store_true", help="start in wireframe")
+    p.add_argument("--hud", action="store_true", help="draw the HUD into --screenshot images too")
+    p.add_argument("--max-fps", type=float, default=60.0, help="window frame-rate cap (default 60)")
+    p.add_argument("--walk", action="store_true",
+                   help="walk through the mesh in first person, starting below the first (or --camera) view: "
+                        "gravity, ground contact and collision with walls (trimesh queries, embree when embreex is "
+                        "installed). Keys: " + WALK_KEYS + "; X, H, K, Esc as usual. With --screenshot: the walker's "
+                        "view after standing for one second")
+    p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
+    return p
+
+
+def add_train_view_args(p):
+    """``--view`` and friends for ``tsplus train``."""
+    p.add_argument("--view", action="store_true", help="open the live viewer window in the training process "
+                                                       "(draws the trainer's own buffers)")
+    p.add_argument("--view-fps", type=float, default=10.0, help="frame cap of the live viewer (default 10)")
+    p.add_argument("--view-close", choices=["continue", "stop"], default="continue",
+                   help="closing the window: training continues (default) or stops as Ctrl-C does")
+
+
+def parse_size(text):
+    try:
+        w, h = (int(v) for v in str(text).lower().split("x"))
+        assert w > 0 and h > 0
+        return w, h
+    except Exception:
+        raise ValueError(f"--size: expected WxH (e.g. 800x600), got {text!r}") from None
+
+
+def attach_live_viewer(trainer, args, scene=None):
+    """Open the live window for ``tsplus train --view`` and hook it into ``trainer``; prints
+    one line and returns None when no window can open (training goes on)."""
+    if not getattr(args, "view", False):
+        return None
+    v = load_viewer()
+    why = v.display_problem()
+    if why is None:
+        try:
+            source = v.TrainerSource(trainer)
+            viewer = v.Viewer(source, cameras=list(scene.cameras) if scene is not None else None,
+                              background=trainer.config.background, max_fps=args.view_fps,
+                              title="tsplus train (live)", camera_index=0 if scene is not None else None)
+        except v.NoDisplayError as exc:
+            why = str(exc)
+    if why is not None:
+        print(f"tsplus: --view: {why}; training continues without the window ({v.NO_DISPLAY_HINT})", flush=True)
+        return None
+    trainer.step_hooks.append(viewer.training_hook(stop_on_close=args.view_close == "stop"))
+    return viewer
+
+
+def _scene_cameras(scene_arg, downscale=1):
+    if not scene_arg:
+        return None
+    from ..data import load_scene_arg
+    try:
+        return list(load_scene_arg(scene_arg, downscale or 1, 0).cameras)
+    except Exception as exc:
+        print(f"tsplus view: cannot load the scene {scene_arg} for its cameras ({exc}); free camera only",
+              file=sys.stderr)
+        return None
+
+
+def run(args):
+    from ..render.renderer import Renderer
+    from ..apps.runs import load_run
+    from ..train.schedules import SIGMA_FINAL
+    v = load_viewer()
+    model, info = load_run(args.path)
+    cameras = _scene_cameras(args.scene or info.get("scene"), info.get("downscale", 1))
+    if args.camera is not None:
+        if not cameras:
+            raise ValueError("--camera: no scene cameras (give --scene, or a run folder that records its scene)")
+        if not 0 <= args.camera < len(cameras):
+            raise ValueError(f"--camera: expected 0..{len(cameras) - 1}, got {args.camera}")
+    size = parse_size(args.size) if args.size else None
+    bg = info.get("background") or (0.0, 0.0, 0.0)
+    renderer = Renderer(args.adapter)
+    source = v.ModelSource(renderer, model, sigma=SIGMA_FINAL if args.sigma is None else args.sigma,
+                           stats=_run_stats(args.path, model))
+    if args.screenshot:
+        if size is None and cameras and args.camera is not None:
+            c = cameras[args.camera]
+            size = (c.width, c.height)
+        viewer = v.Viewer(source, cameras, size=size, offscreen=True, background=bg, hud=args.hud,
+                          camera_index=args.camera, walk=args.walk)
+        viewer.mode = "splat" if args.splat else "mesh"
+        viewer.wire = args.wireframe
+        if viewer.walking is not None:
+            for _ in range(60):            # stand for a second: the walker settles on the ground
+                viewer.walking.walker.step(1 / 60)
+        img = viewer.frame()
+        import imageio.v3 as iio
+        out = Path(args.screenshot)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        iio.imwrite(out, img)
+        print(f"wrote {out} ({img.shape[1]}x{img.shape[0]}, {model.num_triangles} triangles, "
+              f"{'splat' if args.splat else 'wireframe' if args.wireframe else 'mesh'}, {renderer.adapter_name})")
+        return 0
+    why = v.display_problem()
+    viewer = None
+    if why is None:
+        try:
+            viewer = v.Viewer(source, cameras, size=size, background=bg, max_fps=args.max_fps,
+                              camera_index=args.camera, title=f"tsplus view {args.path}", walk=args.walk)
+        except v.NoDisplayError as exc:
+            why = str(exc)
+    if viewer is None:
+        print(f"tsplus view: {why}; {v.NO_DISPLAY_HINT}", file=sys.stderr)
+        return 2
+    viewer.mode = "splat" if args.splat else "mesh"
+    viewer.wire = args.wireframe
+    print(f"tsplus view: {model.num_vertices} vertices / {model.num_triangles} triangles ({info.get('from')}); "
+          f"{len(cameras or [])} scene cameras; {renderer.adapter_name}")
+    if viewer.walking is not None:
+        w = viewer.walking.walker
+        print(f"walking: eye height {w.eye_height:.3g}, body radius {w.radius:.3g}, up {np.round(w.up, 3).tolist()}, "
+              f"ray queries through {w.collider.backend}; {WALK_KEYS}")
+    viewer.run()
+    return 0
+
+
+def _run_stats(path, model):
+    """HUD numbers of a run folder (last log line: iteration, loss; metrics.json: PSNR)."""
+    p = Path(path)
+    stats = {}
+    if p.is_dir():
+        log = p / "log.jsonl"
+        if log.is_file():
+            for line in log.read_text().splitlines()[::-1]:
+                try:
+                    rec = json.loads(line)
+                except ValueError:
+                    continue
+                if "loss" in rec:
+                    stats.update(iteration=rec.get("iteration"), loss=rec.get("loss"), psnr=rec.get("psnr"))
+                    break
+        m = p / "metrics.json"
+        if m.is_file():
+            try:
+                stats["psnr"] = json.loads(m.read_text()).get("mesh_psnr", stats.get("psnr"))
+            except ValueError:
+                pass
+    return stats

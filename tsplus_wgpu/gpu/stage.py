@@ -1,0 +1,99 @@
+"""Stage: the host side of one WGSL kernel (its pipeline, buffers bound by name, dispatch),
+the 2-D dispatch grid and Scratch, named device buffers reused between calls."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .context import GpuContext
+
+
+def grid(groups, max_dim=65535):
+    """Split a 1-D workgroup count into a 2-D grid within the per-dimension limit."""
+    groups = max(1, int(groups))
+    if groups <= max_dim:
+        return (groups, 1, 1)
+    y = (groups + max_dim - 1) // max_dim
+    x = (groups + y - 1) // y
+    return (x, y, 1)
+
+
+class Stage:
+    """Owns the pipeline of one ``shaders/<stage>.wgsl`` and dispatches it with buffers
+    bound by name. Subclasses set ``stage`` and give ``__call__`` a typed signature."""
+
+    stage = ""
+
+    def __init__(self, ctx: GpuContext, constants=None):
+        self.ctx = ctx
+        self.pipeline, self.layout, self.src = ctx.pipeline(self.stage, constants)
+        self.workgroup_size = self.src.workgroup_size
+
+    @property
+    def invocations(self):
+        """Invocations per workgroup of this kernel (from its ``@workgroup_size``)."""
+        return self.src.invocations
+
+    def const(self, name):
+        """A scalar ``const`` of this kernel's WGSL (see :meth:`WgslSource.const`)."""
+        return self.src.const(name)
+
+    def groups(self, n, per=None):
+        """Workgroups for ``n`` items, ``per`` items per workgroup (default: one per invocation)."""
+        return groups(n, self.invocations if per is None else per)
+
+    def uniform(self, struct_name, **values):
+        dt = self.src.structs[struct_name]
+        arr = np.zeros((), dt)
+        for k, v in values.items():
+            if k not in dt.names:
+                raise KeyError(f"{self.stage}.wgsl: struct {struct_name} has no field {k}")
+            arr[k] = v
+        missing = [n for n in dt.names if n not in values and not n.startswith("_")]
+        if missing:
+            raise KeyError(f"{self.stage}.wgsl: struct {struct_name} fields not set: {missing}")
+        return self.ctx.uniform(arr, label=f"{self.stage}.{struct_name}")
+
+    def bind(self, buffers):
+        want = set(self.src.bindings)
+        got = set(buffers)
+        if want != got:
+            raise KeyError(f"{self.stage}.wgsl bindings: missing {sorted(want - got)}, unexpected {sorted(got - want)}")
+        entries = [{"binding": self.src.bindings[n].slot, "resource": {"buffer": buf, "offset": 0, "size": buf.size}}
+                   for n, buf in buffers.items()]
+        return self.ctx.device.create_bind_group(layout=self.layout, entries=entries)
+
+    def dispatch(self, encoder, groups, buffers, profiler=None, label=None):
+        """Record one dispatch; ``groups`` is an int (split into a 2-D grid) or an (x, y, z) tuple."""
+        bg = self.bind(buffers)
+        if isinstance(groups, int):
+            groups = grid(groups, self.ctx.limits["max-compute-workgroups-per-dimension"])
+        tw = profiler.writes(label or self.stage) if profiler is not None else None
+        cp = encoder.begin_compute_pass(timestamp_writes=tw) if tw else encoder.begin_compute_pass()
+        cp.set_pipeline(self.pipeline)
+        cp.set_bind_group(0, bg)
+        cp.dispatch_workgroups(*groups)
+        cp.end()
+
+
+class Scratch:
+    """Named device buffers that grow on demand and are reused between calls."""
+
+    def __init__(self, ctx: GpuContext):
+        self.ctx = ctx
+        self.buffers = {}
+
+    def get(self, name, nbytes):
+        nbytes = max(16, int(nbytes))
+        buf = self.buffers.get(name)
+        if buf is None or buf.size < nbytes:
+            cap = nbytes if buf is None else max(nbytes, min(buf.size * 3 // 2, self.ctx.limits["max-storage-buffer-binding-size"]))
+            cap = (cap + 255) // 256 * 256
+            buf = self.ctx.buffer(cap, label=name)
+            self.buffers[name] = buf
+        return buf
+
+
+def groups(n, per=256):
+    """Workgroups for ``n`` items at ``per`` items per workgroup (at least one)."""
+    return max(1, (int(n) + per - 1) // per)

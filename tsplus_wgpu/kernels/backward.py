@@ -1,0 +1,68 @@
+"""Host classes of shaders/backward/: the backward blend's start state (``backward_prepare``)
+and replay (``rasterize_backward``), and the chain rule to the triangles' corners
+(``project_backward``) and to the vertices (``vertex_backward``)."""
+
+from __future__ import annotations
+
+from ..gpu import Stage
+from ..gpu.wgsl import constant
+
+#: Sufficient statistics per (triangle, tile) pair and per triangle (``shaders/common/grad_stats.wgsl``).
+NSTAT = constant("NSTAT", "grad_stats")
+
+
+class BackwardPrepare(Stage):
+    stage = "backward_prepare"
+
+    def __call__(self, enc, params, image, final_t, n_contrib, v_out, state, num_pixels, profiler=None):
+        self.dispatch(enc, self.groups(num_pixels),
+                      dict(params=params, image=image, final_t=final_t, n_contrib=n_contrib, v_out=v_out,
+                           state=state), profiler)
+
+
+class RasterizeBackward(Stage):
+    """One workgroup per tile; a tile's pairs in rounds of ``RB`` pairs, ``rounds_per_pass``
+    rounds per dispatch (``ROUNDS_PER_PASS`` of the WGSL: lavapipe's loop budget)."""
+
+    stage = "rasterize_backward"
+
+    def __init__(self, ctx, constants=None):
+        super().__init__(ctx, constants)
+        self.pairs_per_round = self.const("RB")
+        self.rounds_per_pass = self.const("ROUNDS_PER_PASS")
+
+    def __call__(self, enc, params, ranges, pair_tris, tris, v_out, state, partials, work, tiles_x, tiles_y,
+                 max_range, profiler=None):
+        enc.clear_buffer(partials)
+        enc.clear_buffer(work)
+        rounds = (int(max_range) + self.pairs_per_round - 1) // self.pairs_per_round
+        step = self.rounds_per_pass
+        for r0 in range(0, max(rounds, 1), step):
+            pp = self.uniform("PassParams", round_begin=r0, round_end=r0 + step)
+            self.dispatch(enc, (tiles_x, tiles_y, 1),
+                          dict(params=params, pp=pp, ranges=ranges, pair_tris=pair_tris, tris=tris, v_out=v_out,
+                               state=state, partials=partials, work=work), profiler)
+
+
+class ProjectBackward(Stage):
+    stage = "project_backward"
+
+    def __call__(self, enc, params, positions, triangles, opacities, colors, tris, pixel_rects, tri_stats,
+                 corner_grads, num_triangles, profiler=None):
+        self.dispatch(enc, self.groups(num_triangles),
+                      dict(params=params, positions=positions, triangles=triangles, opacities=opacities,
+                           colors=colors, tris=tris, pixel_rects=pixel_rects, tri_stats=tri_stats,
+                           corner_grads=corner_grads), profiler)
+
+
+class VertexBackward(Stage):
+    stage = "vertex_backward"
+
+    def __call__(self, enc, params, positions, sh, vertex_sums, v_positions, v_sh, v_opacity, num_vertices,
+                 profiler=None):
+        self.dispatch(enc, self.groups(num_vertices),
+                      dict(params=params, positions=positions, sh_coeffs=sh, vertex_sums=vertex_sums,
+                           v_positions=v_positions, v_sh=v_sh, v_opacity=v_opacity), profiler)
+
+
+__all__ = ["NSTAT", "BackwardPrepare", "RasterizeBackward", "ProjectBackward", "VertexBackward"]

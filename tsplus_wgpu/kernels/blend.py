@@ -1,0 +1,62 @@
+"""Host classes of ``shaders/blend/``: the forward blend and, as a pipeline-constant variant
+of the same WGSL, the triangle-ID pass."""
+
+from __future__ import annotations
+
+from ..gpu.stage import Stage
+from ..gpu.wgsl import constant
+
+#: Pairs per tile that one blend dispatch handles at most (lavapipe's loop budget; the
+#: WGSL's ``PASS_PAIRS``, a whole number of ``BATCH``es).
+BLEND_PASS_PAIRS = constant("PASS_PAIRS", "rasterize_forward")
+
+
+class RasterizeForward(Stage):
+    """The forward blend: image, final T, per-pixel (last contributing, evaluated) pair counts,
+    per-triangle max weight and the work counters."""
+
+    stage = "rasterize_forward"
+    label = "rasterize_forward"     # profiler label
+
+    def passes(self, enc, max_tile_pairs, buffers, tiles_x, tiles_y, profiler=None):
+        """Record ceil(max_tile_pairs / PASS_PAIRS) dispatches (one in practice), each over the
+        next window of every tile's pairs, the pixel state carried in the bound outputs."""
+        step = self.const("PASS_PAIRS")
+        passes = max(1, -(-int(max_tile_pairs) // step))
+        for i in range(passes):
+            bp = self.uniform("BlendPass", begin=i * step, end=(i + 1) * step,
+                              first=int(i == 0), last=int(i == passes - 1))
+            self.dispatch(enc, (tiles_x, tiles_y, 1), dict(buffers, pass_=bp), profiler, self.label)
+
+    def __call__(self, enc, params, ranges, pair_tris, tris, image, final_t, n_contrib, max_weight, work,
+                 tiles_x, tiles_y, max_tile_pairs, profiler=None):
+        enc.clear_buffer(max_weight)
+        enc.clear_buffer(work)
+        self.passes(enc, max_tile_pairs, dict(params=params, ranges=ranges, pair_tris=pair_tris, tris=tris,
+                                              image=image, final_t=final_t, n_contrib=n_contrib,
+                                              max_weight=max_weight, work=work), tiles_x, tiles_y, profiler)
+
+
+class RasterizeIds(RasterizeForward):
+    """The triangle-ID pass: ``rasterize_forward.wgsl`` with ``TRIANGLE_IDS`` set, walking the
+    same sorted tile lists in as many passes."""
+
+    label = "rasterize_ids"
+
+    def __init__(self, ctx):
+        super().__init__(ctx, constants={"TRIANGLE_IDS": 1})
+        #: bound where the forward writes its image, max weights and work (unused by this variant)
+        self.placeholder = ctx.buffer(16, "rasterize_ids.placeholder")
+
+    def __call__(self, enc, params, ranges, pair_tris, tris, id_t, id_state, tiles_x, tiles_y, max_tile_pairs,
+                 profiler=None):
+        """Per pixel the triangle of largest alpha * T, ties to the front-most: ``id_state``
+        ``[H, W]`` vec2<u32> gets (its index, its weight as f32 bits), (0xFFFFFFFF, 0) where none
+        contributes; ``id_t`` ``[H, W]`` f32 the transmittance of the walk."""
+        ph = self.placeholder
+        self.passes(enc, max_tile_pairs, dict(params=params, ranges=ranges, pair_tris=pair_tris, tris=tris,
+                                              image=ph, final_t=id_t, n_contrib=id_state, max_weight=ph,
+                                              work=ph), tiles_x, tiles_y, profiler)
+
+
+__all__ = ["BLEND_PASS_PAIRS", "RasterizeForward", "RasterizeIds"]

@@ -1,0 +1,128 @@
+"""Host classes of shaders/optim/: the trainer's per-vertex kernels and Adam. Twins:
+:mod:`tsplus_wgpu.reference.optim` (same names).
+
+* ``train_activate`` (:class:`TrainActivate`): trained parameters -> the renderer's inputs:
+  opacity ``o = m + (1 - m) sigmoid(w)`` (re-inverting ``w`` first when the floor moves) and
+  SH from the planar ``[K, N, 3]`` layout (SH DC and SH rest are contiguous ranges there, the
+  Adam groups) to the renderer's ``[N, K, 3]``.
+* ``train_grads`` (:class:`TrainGrads`): renderer gradients -> parameter gradients:
+  ``v_w = (v_o + reg) (1 - m) s (1 - s)`` and ``v_sh`` to planar with the bands above the
+  scheduled SH degree zeroed.
+* ``opacity_reg`` (:class:`OpacityReg`): the early opacity loss ``weight * mean_T o_T``, its
+  gradient per corner; :class:`OpacityRegGradient` sums the corners per vertex with
+  :class:`~tsplus_wgpu.kernels.reduce.SegmentSum` over the corners sorted by vertex (sorted
+  once per topology on the host).
+* ``adam`` (:class:`Adam`): one Adam step of one parameter group.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..gpu import Stage, grid
+from ..gpu.context import GpuContext
+from .reduce import SegmentSum
+
+
+class TrainActivate(Stage):
+    stage = "train_activate"
+
+    def __call__(self, enc, sh_planar, logits, sh, opacity, n, k, floor, floor_old=None, eps=None,
+                 profiler=None):
+        """``eps``: the clamp of the re-inverted q (default: the shader's ``REINVERT_EPS``)."""
+        eps = self.const("REINVERT_EPS") if eps is None else eps
+        ap = self.uniform("ActivateParams", n=n, k=k, reinvert=int(floor_old is not None), floor=floor,
+                          floor_old=0.0 if floor_old is None else floor_old, eps=eps)
+        self.dispatch(enc, self.groups(n), dict(ap=ap, sh_planar=sh_planar, logits=logits, sh=sh, opacity=opacity),
+                      profiler)
+
+
+class TrainGrads(Stage):
+    stage = "train_grads"
+
+    def __call__(self, enc, logits, v_sh, v_opacity, reg, v_sh_planar, v_logits, n, k, active_k, floor,
+                 use_reg, profiler=None):
+        gp = self.uniform("GradParams", n=n, k=k, active_k=active_k, use_reg=int(bool(use_reg)), floor=floor)
+        self.dispatch(enc, self.groups(n), dict(gp=gp, logits=logits, v_sh=v_sh, v_opacity=v_opacity, reg=reg,
+                                                 v_sh_planar=v_sh_planar, v_logits=v_logits), profiler)
+
+
+class OpacityReg(Stage):
+    """Per triangle, the early opacity loss's gradient at its three corners: ``corner_vals [3M]``
+    vec4, ``weight / M`` in ``.x`` at the corner holding the minimum opacity."""
+    stage = "opacity_reg"
+
+    def __call__(self, enc, triangles, opacity, corner_vals, m, weight, profiler=None):
+        rp = self.uniform("RegParams", num_triangles=m, per_triangle=float(weight) / max(m, 1))
+        self.dispatch(enc, self.groups(m), dict(rp=rp, triangles=triangles, opacity=opacity,
+                                                 corner_vals=corner_vals), profiler)
+
+
+class OpacityRegGradient:
+    """The early opacity loss's gradient per vertex, on the device, deterministic.
+
+    ``set_topology`` (host, once per triangle list) sorts the corners by vertex; ``record``
+    writes per-corner values (:class:`OpacityReg`) and sums them per vertex into ``out``
+    (``[N]`` vec4, the gradient in ``.x``)."""
+
+    def __init__(self, ctx, scratch):
+        self.ctx = ctx
+        self.kernel = OpacityReg(ctx)
+        self.sum = SegmentSum(ctx, scratch, "opacity_reg_sum")
+        self.keys = self.index = None
+        self.m = 0
+
+    def set_topology(self, triangles):
+        tri = np.asarray(triangles, np.int64).reshape(-1)
+        order = np.argsort(tri, kind="stable").astype(np.uint32)   # corners by vertex, in corner order
+        self.keys = self.ctx.upload(tri[order].astype(np.uint32), "opacity_reg_keys")
+        self.index = self.ctx.upload(order, "opacity_reg_index")
+        self.m = len(tri) // 3
+
+    def record(self, enc, triangles, opacity, corner_vals, out, weight, profiler=None):
+        self.kernel(enc, triangles, opacity, corner_vals, self.m, weight, profiler)
+        self.sum.record(enc, self.keys, self.index, corner_vals, 3 * self.m, 1, out, profiler, "opacity_reg")
+
+
+def _bias(beta, step):
+    return 1.0 - beta ** int(step)
+
+
+class Adam(Stage):
+    """Records Adam steps on flat f32 buffers (param, grad, exp_avg, exp_avg_sq).
+
+    A parameter group is a range ``[offset, offset + n)`` of the buffers (elements), so groups
+    with different learning rates may share a buffer (e.g. SH DC and SH rest). ``beta1``,
+    ``beta2``, ``eps`` default to the shader's ``BETA1``, ``BETA2``, ``ADAM_EPS``.
+    """
+
+    stage = "adam"
+
+    def __init__(self, ctx: GpuContext, beta1=None, beta2=None, eps=None):
+        super().__init__(ctx)
+        self.beta1 = float(self.const("BETA1") if beta1 is None else beta1)
+        self.beta2 = float(self.const("BETA2") if beta2 is None else beta2)
+        self.eps = float(self.const("ADAM_EPS") if eps is None else eps)
+
+    def record(self, enc, param, grad, exp_avg, exp_avg_sq, n, lr, step, offset=0, profiler=None, max_dim=None):
+        """One step of one group. ``step`` is the group's 1-based step count (bias correction).
+        ``max_dim`` overrides the per-dimension workgroup limit (tests of the 2-D grid)."""
+        n, offset = int(n), int(offset)
+        if n < 0 or offset < 0:
+            raise ValueError(f"Adam: n and offset must be >= 0, got n={n}, offset={offset}")
+        if int(step) < 1:
+            raise ValueError(f"Adam: step is 1-based, got {step!r}")
+        for name, buf in (("param", param), ("grad", grad), ("exp_avg", exp_avg), ("exp_avg_sq", exp_avg_sq)):
+            if buf.size < 4 * (offset + n):
+                raise ValueError(f"Adam: buffer {name} holds {buf.size // 4} floats, needs {offset + n}")
+        if n == 0:
+            return
+        ap = self.uniform("AdamParams", offset=offset, n=n, lr=lr, beta1=self.beta1, beta2=self.beta2,
+                          one_minus_beta1=1.0 - self.beta1, one_minus_beta2=1.0 - self.beta2,
+                          eps=self.eps, bias1=_bias(self.beta1, step), bias2=_bias(self.beta2, step))
+        dims = grid(self.groups(n), max_dim or self.ctx.limits["max-compute-workgroups-per-dimension"])
+        self.dispatch(enc, dims, dict(ap=ap, param=param, grad=grad, exp_avg=exp_avg, exp_avg_sq=exp_avg_sq),
+                      profiler)
+
+
+__all__ = ["TrainActivate", "TrainGrads", "OpacityReg", "OpacityRegGradient", "Adam"]

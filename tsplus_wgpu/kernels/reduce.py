@@ -1,0 +1,79 @@
+"""Host classes of shaders/reduce/: the max reduction (``max_reduce``) and the deterministic
+segmented sum (``segment_up``, ``segment_down``; composed by :class:`SegmentSum`)."""
+
+from __future__ import annotations
+
+from ..gpu import Stage
+
+
+class MaxReduce(Stage):
+    """The largest of ``n`` u32 values into ``result[0]`` (one workgroup)."""
+
+    stage = "max_reduce"
+
+    def __call__(self, enc, values, result, n, profiler=None, label=None):
+        rp = self.uniform("ReduceParams", n=n)
+        self.dispatch(enc, 1, dict(rp=rp, values=values, result=result), profiler, label)
+
+
+class SegmentUp(Stage):
+    """One level of the up-sweep: per chunk of ``CHUNK`` elements its leading run's sum and key."""
+
+    stage = "segment_up"
+
+    def __call__(self, enc, keys_in, index, vals_in, keys_out, vals_out, n, width, gather, profiler=None,
+                 label=None):
+        sp = self.uniform("SegParams", n=n, width=width, gather=int(gather), top=0)
+        chunks = self.groups(n, self.const("CHUNK"))
+        self.dispatch(enc, self.groups(chunks), dict(sp=sp, keys_in=keys_in, index=index, vals_in=vals_in,
+                                                     keys_out=keys_out, vals_out=vals_out), profiler, label)
+
+
+class SegmentDown(Stage):
+    """One level of the down-sweep: every run start adds its run (within its chunk, or the
+    whole run on the ``top`` level) to ``out[key]``."""
+
+    stage = "segment_down"
+
+    def __call__(self, enc, keys_in, index, vals_in, out, n, width, gather, top, profiler=None, label=None):
+        sp = self.uniform("SegParams", n=n, width=width, gather=int(gather), top=int(top))
+        self.dispatch(enc, self.groups(n), dict(sp=sp, keys_in=keys_in, index=index, vals_in=vals_in, out=out),
+                      profiler, label)
+
+
+class SegmentSum:
+    """Deterministic segmented sum with bounded work per invocation (see
+    ``shaders/common/segment.wgsl``): ``out[key] = sum of the values of the elements with
+    that key``, in a fixed order, for sorted ``keys [n]``; element i's value is the
+    ``width`` vec4s at ``vals[index[i] * width:]``. ``out`` (``[keys, width]`` vec4) is
+    zeroed first, so keys without elements get zero."""
+
+    def __init__(self, ctx, scratch, name):
+        self.ctx = ctx
+        self.scratch = scratch
+        self.name = name
+        self.up = SegmentUp(ctx)
+        self.down = SegmentDown(ctx)
+        self.chunk = self.up.const("CHUNK")    # elements per chunk and level
+
+    def record(self, enc, keys, index, vals, n, width, out, profiler=None, label=None):
+        assert width in (1, 2, 5)
+        enc.clear_buffer(out)
+        if n == 0:
+            return
+        levels = [(keys, vals, int(n))]
+        while levels[-1][2] > self.chunk:
+            k_in, v_in, n_l = levels[-1]
+            nc = (n_l + self.chunk - 1) // self.chunk
+            depth = len(levels)
+            k_out = self.scratch.get(f"{self.name}_keys_{depth}", 4 * nc)
+            v_out = self.scratch.get(f"{self.name}_vals_{depth}", 16 * width * nc)
+            self.up(enc, k_in, index, v_in, k_out, v_out, n_l, width, depth == 1, profiler, label)
+            levels.append((k_out, v_out, nc))
+        for depth in range(len(levels) - 1, -1, -1):
+            k_in, v_in, n_l = levels[depth]
+            self.down(enc, k_in, index, v_in, out, n_l, width, depth == 0, depth == len(levels) - 1, profiler,
+                      label)
+
+
+__all__ = ["MaxReduce", "SegmentUp", "SegmentDown", "SegmentSum"]

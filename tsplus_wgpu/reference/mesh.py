@@ -1,0 +1,88 @@
+"""Float64 twin of ``shaders/mesh/mesh_raster.wgsl`` drawn by the standard depth-tested render
+pipeline of :class:`~tsplus_wgpu.render.mesh_renderer.MeshRenderer`: a z-buffer evaluated on
+pixel centres."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..sh import mesh_arrays
+from ..types import Camera
+
+
+def mesh_raster(mesh, camera: Camera, background=(0.0, 0.0, 0.0), near=0.01, drop_near=True,
+                     interpolation="perspective", edge_tol=1e-4, subpixel_bits=None):
+    """Float64 z-buffer twin of :meth:`MeshRenderer.render` at s = 1, evaluated on pixel
+    centres. Returns ``(image [H,W,3], depth [H,W] (0 = nothing), triangle id [H,W] (-1),
+    ambiguous [H,W] bool)``: ambiguous where a pixel centre is within ``edge_tol`` px of an
+    edge of a triangle that covers it or nearly does (the hardware's tie rule decides there),
+    or where two surfaces are within 1e-5 relative depth. Triangles crossing the near plane
+    are dropped (``drop_near``) or rejected with ValueError otherwise (not modelled).
+
+    ``subpixel_bits``: rasterisers snap projected vertices to a fixed-point grid of
+    ``2**-bits`` px before the coverage test (Vulkan guarantees >= 4 bits; lavapipe and the
+    desktop GPUs use 8), which moves edges by up to ~``0.7 * 2**-bits`` px; give the bits to
+    snap the same way for the coverage test (None: exact positions); depth and colour
+    are interpolated from the exact positions, as the hardware does to within float32."""
+    pos, tri, col = mesh_arrays(mesh, camera)
+    h, w = camera.height, camera.width
+    cam_pts = pos @ camera.R.T + camera.t
+    z = cam_pts[:, 2]
+    img = np.empty((h, w, 3))
+    img[:] = np.asarray(background, np.float64)
+    inv_depth = np.zeros((h, w))
+    second = np.zeros((h, w))
+    tid = np.full((h, w), -1, np.int64)
+    amb = np.zeros((h, w), bool)
+    zs = np.where(z > 0, z, 1.0)
+    uv = np.stack([camera.fx * cam_pts[:, 0] / zs + camera.cx, camera.fy * cam_pts[:, 1] / zs + camera.cy], 1)
+    uv_cover = uv if subpixel_bits is None else np.round(uv * 2.0 ** subpixel_bits) / 2.0 ** subpixel_bits
+    for t, (a, b, c) in enumerate(tri):
+        if min(z[a], z[b], z[c]) <= near:
+            if drop_near:
+                continue
+            raise ValueError("mesh_raster: near-plane clipping is not modelled; use drop_near=True")
+        pa, pb, pc = uv[a], uv[b], uv[c]
+        area = (pb[0] - pa[0]) * (pc[1] - pa[1]) - (pb[1] - pa[1]) * (pc[0] - pa[0])
+        if area == 0:
+            continue
+        lo = np.floor(np.minimum(np.minimum(pa, pb), pc) - 1).astype(int)
+        hi = np.ceil(np.maximum(np.maximum(pa, pb), pc) + 1).astype(int)
+        x0, y0 = max(lo[0], 0), max(lo[1], 0)
+        x1, y1 = min(hi[0], w), min(hi[1], h)
+        if x0 >= x1 or y0 >= y1:
+            continue
+        py, px = np.mgrid[y0:y1, x0:x1] + 0.5
+
+        def edge(p, q):  # signed distance (px) of the centres from line p->q, positive inside for area > 0
+            e = (q[0] - p[0]) * (py - p[1]) - (q[1] - p[1]) * (px - p[0])
+            return e / np.hypot(q[0] - p[0], q[1] - p[1]) * np.sign(area)
+
+        qa, qb, qc = uv_cover[a], uv_cover[b], uv_cover[c]
+        ea, eb, ec = edge(qb, qc), edge(qc, qa), edge(qa, qb)
+        dmin = np.minimum(np.minimum(ea, eb), ec)
+        inside = dmin > 0
+        near_edge = np.abs(dmin) <= edge_tol
+        # screen barycentrics
+        la = ((pb[0] - px) * (pc[1] - py) - (pb[1] - py) * (pc[0] - px)) / area
+        lb = ((pc[0] - px) * (pa[1] - py) - (pc[1] - py) * (pa[0] - px)) / area
+        lc = 1.0 - la - lb
+        iz = la / z[a] + lb / z[b] + lc / z[c]            # 1/z is affine in screen space
+        if interpolation == "linear":
+            cc = la[..., None] * col[a] + lb[..., None] * col[b] + lc[..., None] * col[c]
+        else:
+            cc = (la[..., None] * col[a] / z[a] + lb[..., None] * col[b] / z[b] + lc[..., None] * col[c] / z[c]) \
+                / iz[..., None]
+        sub_amb = amb[y0:y1, x0:x1]
+        sub_amb |= near_edge & (iz >= inv_depth[y0:y1, x0:x1] * (1 - 1e-3))
+        win = inside & (iz > inv_depth[y0:y1, x0:x1])
+        loser = inside & ~win
+        sec = second[y0:y1, x0:x1]
+        sec[win] = inv_depth[y0:y1, x0:x1][win]
+        sec[loser] = np.maximum(sec[loser], iz[loser])
+        inv_depth[y0:y1, x0:x1][win] = iz[win]
+        img[y0:y1, x0:x1][win] = cc[win]
+        tid[y0:y1, x0:x1][win] = t
+    amb |= (second > 0) & (np.abs(inv_depth - second) <= 1e-5 * inv_depth)
+    depth = np.where(inv_depth > 0, 1.0 / np.where(inv_depth > 0, inv_depth, 1.0), 0.0)
+    return img, depth, tid, amb

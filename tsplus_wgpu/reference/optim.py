@@ -1,0 +1,89 @@
+"""Float64 twins of shaders/optim/, one function per kernel (same name), and of the per-vertex
+opacity-regulariser gradient (:func:`opacity_reg_gradient`: opacity_reg + segmented sum)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..gpu.wgsl import constant
+
+BETA1 = constant("BETA1", "adam")
+BETA2 = constant("BETA2", "adam")
+ADAM_EPS = constant("ADAM_EPS", "adam")
+REINVERT_EPS = constant("REINVERT_EPS", "train_activate")
+
+
+def sigmoid(w):
+    """The logistic function, float64, stable for large |w|."""
+    w = np.asarray(w, np.float64)
+    e = np.exp(-np.abs(w))
+    return np.where(w >= 0, 1.0 / (1.0 + e), e / (1.0 + e))
+
+
+def train_activate(sh_planar, logits, floor, floor_old=None, eps=REINVERT_EPS):
+    """Returns ``(sh [N, K, 3], opacity [N], logits [N])`` in float64 (logits re-inverted
+    when ``floor_old`` is given)."""
+    sp = np.asarray(sh_planar, np.float64)
+    w = np.asarray(logits, np.float64)
+    if floor_old is not None:
+        o_old = floor_old + (1.0 - floor_old) * sigmoid(w)
+        q = np.clip((o_old - floor) / (1.0 - floor), eps, 1.0 - eps)
+        w = np.log(q) - np.log1p(-q)
+    return sp.transpose(1, 0, 2).copy(), floor + (1.0 - floor) * sigmoid(w), w
+
+
+def train_grads(logits, v_sh, v_opacity, floor, active_k, reg=None):
+    """Returns ``(v_sh_planar [K, N, 3], v_logits [N])`` in float64."""
+    w = np.asarray(logits, np.float64)
+    s = sigmoid(w)
+    vo = np.asarray(v_opacity, np.float64) + (0.0 if reg is None else np.asarray(reg, np.float64))
+    vsp = np.asarray(v_sh, np.float64).transpose(1, 0, 2).copy()
+    vsp[int(active_k):] = 0.0
+    return vsp, vo * (1.0 - floor) * s * (1.0 - s)
+
+
+def min_corner(tri, op):
+    """Per triangle, the corner (0..2) holding the minimum opacity, ties to the lowest vertex index."""
+    o = op[tri]
+    cand = np.where(o == o.min(axis=1, keepdims=True), tri, np.iinfo(np.int64).max)
+    return np.argmin(cand, axis=1)
+
+
+def opacity_reg(triangles, opacity, weight):
+    """``corner_vals [3M, 4]``: ``weight / M`` in ``.x`` at the corner of each triangle holding
+    the minimum opacity (ties to the lowest vertex index), 0 elsewhere (float64)."""
+    tri = np.asarray(triangles, np.int64).reshape(-1, 3)
+    op = np.asarray(opacity, np.float64)
+    m = len(tri)
+    out = np.zeros((3 * m, 4))
+    if m:
+        out[3 * np.arange(m) + min_corner(tri, op), 0] = weight / m
+    return out
+
+
+def opacity_reg_gradient(triangles, opacity, weight, num_vertices):
+    """d (weight * mean over triangles of min corner opacity) / d opacity, ``[N]`` float64
+    (ties to the lowest vertex index): :func:`opacity_reg` summed per vertex."""
+    tri = np.asarray(triangles, np.int64).reshape(-1, 3)
+    out = np.zeros(int(num_vertices))
+    np.add.at(out, tri.reshape(-1), opacity_reg(tri, opacity, weight)[:, 0])
+    return out
+
+
+def _bias(beta, step):
+    return 1.0 - beta ** int(step)
+
+
+def adam(param, grad, m, v, lr, step, beta1=BETA1, beta2=BETA2, eps=ADAM_EPS):
+    """One Adam step in float64. Returns new ``(param, m, v)``; ``step`` is 1-based."""
+    if int(step) < 1:
+        raise ValueError(f"step: expected >= 1 (1-based), got {step!r}")
+    p, g = np.asarray(param, np.float64), np.asarray(grad, np.float64)
+    m = beta1 * np.asarray(m, np.float64) + (1.0 - beta1) * g
+    v = beta2 * np.asarray(v, np.float64) + (1.0 - beta2) * g * g
+    p = p - lr * (m / _bias(beta1, step)) / (np.sqrt(v / _bias(beta2, step)) + eps)
+    return p, m, v
+
+
+__all__ = ["BETA1", "BETA2", "ADAM_EPS", "REINVERT_EPS", "sigmoid", "min_corner", "train_activate", "train_grads", "opacity_reg",
+           "opacity_reg_gradient", "adam"]

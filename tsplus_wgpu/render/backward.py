@@ -1,0 +1,239 @@
+"""The backward pass on the device: portable (no float atomics) and deterministic.
+
+Stages, each a ``shaders/<group>/<kernel>.wgsl`` with a class of the same name in
+:mod:`tsplus_wgpu.kernels` and a float64 twin in :mod:`tsplus_wgpu.reference`:
+
+1. ``backward_prepare`` (per pixel): the blend's starting state; ``rasterize_backward``
+   (per tile, in passes of ``ROUNDS_PER_PASS`` rounds of its WGSL): front-to-back replay of
+   the forward blend up to each pixel's last contributing pair; per (triangle, tile) pair the 19 sufficient statistics
+   of ``common/grad_stats.wgsl``, summed over the tile's pixels in a fixed order.
+2. pair reduce: the pairs sorted by triangle with the stable :class:`RadixSort` (so each
+   triangle's pairs come in tile order), then :class:`SegmentSum` (``segment_up`` /
+   ``segment_down``) of their statistics per triangle.
+3. ``project_backward`` (per triangle): exact chain rule to its three corners.
+4. corner -> vertex: the triangle index buffer sorted by vertex with the stable
+   :class:`RadixSort` (values: corner indices), so each vertex's corners come in order;
+   :class:`SegmentSum` of their gradients per vertex.
+5. ``vertex_backward`` (per vertex): the SH chain rule.
+
+Every float sum has a fixed order, so the gradients are bit-identical from run to run on
+one adapter, and nothing is lost on shared vertices. No invocation loops more than a
+bounded number of times whatever the scene (lavapipe ends an invocation's loops after
+65535 iterations in total): the segmented sums read at most ``CHUNK`` elements each, on
+as many levels as needed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import weakref
+
+import numpy as np
+import wgpu
+
+from ..gpu.recorder import Recorder
+from ..kernels.backward import NSTAT, BackwardPrepare, ProjectBackward, RasterizeBackward, VertexBackward
+from ..kernels.reduce import SegmentSum
+from ..kernels.sort import RadixSort
+from ..types import Grads, TriangleModel, check_cotangents
+
+
+class BackwardPass:
+    """The stages of the backward pass for one :class:`Renderer` (pipelines compiled once)."""
+
+    def __init__(self, renderer):
+        c = renderer.ctx
+        self.renderer = renderer
+        self.ctx = c
+        self.prepare = BackwardPrepare(c)
+        self.raster = RasterizeBackward(c)
+        self.pair_sort = RadixSort(c, renderer.scratch, "pair_sort")
+        self.pair_sum = SegmentSum(c, renderer.scratch, "pair_sum")
+        self.corner_sum = SegmentSum(c, renderer.scratch, "corner_sum")
+        self.project = ProjectBackward(c)
+        self.vertex = VertexBackward(c)
+        self.corner_sort = RadixSort(c, renderer.scratch, "corner_sort")
+        self._corner_cache = None   # (topology key, sorted corner keys, corner ids)
+
+    def _corner_order(self, enc, model, triangles, m, n, profiler):
+        """The corners sorted by vertex (stable): (vertex keys, corner ids) buffers.
+
+        It depends only on the index buffer, so for a host :class:`TriangleModel` it is
+        kept for the next call with the same topology, keyed on the index array's content
+        (a digest, so a changed topology is never served a stale order). A model already
+        on the device has no host copy to key on: sorted every call, unless it carries its
+        ``corner_order`` (:class:`~tsplus_wgpu.DeviceModel`)."""
+        key = None
+        if isinstance(model, TriangleModel):
+            idx = np.ascontiguousarray(model.triangles, dtype=np.uint32)
+            key = (int(n), int(m), hashlib.blake2b(idx.tobytes(), digest_size=20).digest())
+            if self._corner_cache is not None and self._corner_cache[0] == key:
+                return self._corner_cache[1], self._corner_cache[2]
+        known = getattr(model, "corner_order", None)   # a DeviceModel whose owner knows the order
+        if known is not None:
+            return known
+        c = self.ctx
+        keys = c.buffer(12 * m, "corner_keys")
+        vals = c.upload(np.arange(3 * m, dtype=np.uint32), "corner_ids")
+        enc.copy_buffer_to_buffer(triangles, 0, keys, 0, 12 * m)
+        bits = max(1, int(n - 1).bit_length())
+        skeys, svals = self.corner_sort.record(enc, keys, vals, 3 * m, bits, profiler)
+        if key is None:
+            return skeys, svals
+        # owned copies (the sort may leave its result in scratch buffers shared by later calls)
+        ck, cv = c.buffer(12 * m, "corner_keys_sorted"), c.buffer(12 * m, "corner_ids_sorted")
+        enc.copy_buffer_to_buffer(skeys, 0, ck, 0, 12 * m)
+        enc.copy_buffer_to_buffer(svals, 0, cv, 0, 12 * m)
+        self._corner_cache = (key, ck, cv)
+        return ck, cv
+
+    def run(self, result, v_image, v_transmittance=None, profile=False, read=True, out=None):
+        """The backward pass of ``result``.
+
+        Args:
+            v_image: ``[H, W, 3]`` array, or a device buffer already in the kernel's layout
+                ``[H * W]`` vec4 (dL/d rgb, dL/d T) (then ``v_transmittance`` must be None).
+            read: read the gradients back (``Grads``); with False return the timings only.
+            out: optional dict of device buffers ``v_positions`` (``[N, 3]`` f32), ``v_sh``
+                (``[N, K, 3]``), ``v_opacity`` (``[N]``) to write the gradients into (reused
+                between calls). With ``read=False`` nothing is read back and nothing waits.
+        """
+        c = self.ctx
+        model = result.model
+        n, k = model.num_vertices, model.sh_size
+        v_out = self._v_out(result.camera, v_image, v_transmittance)
+        self._check_sizes(result)
+        given = out is not None
+        out = self._outputs(out, n, k)
+        if result.num_pairs == 0:   # nothing reached the image: every gradient is zero (cheap for empty views)
+            enc = c.device.create_command_encoder()
+            for buf_ in out.values():
+                enc.clear_buffer(buf_)
+            c.queue.submit([enc.finish()])
+            return self._finish(out, n, k, {}, {}, read, wait=not given)
+        rec = Recorder(c, profile)
+        buf = self._record(rec, result, v_out, out)
+        return self._finish(out, n, k, buf, rec.resolve(), read, wait=not given)
+
+    def _v_out(self, cam, v_image, v_transmittance):
+        """The cotangent as the kernels read it: a device buffer ``[H * W]`` vec4, or the
+        host array ``[H * W, 4]`` to upload."""
+        h, w = cam.height, cam.width
+        if isinstance(v_image, wgpu.GPUBuffer):
+            if v_transmittance is not None:
+                raise ValueError("v_transmittance: must be None when v_image is a device buffer (its .w lanes)")
+            if v_image.size < 16 * h * w:
+                raise ValueError(f"v_image: buffer holds {v_image.size} bytes, needs {16 * h * w} ([H*W] vec4)")
+            return v_image
+        vi, vt = check_cotangents(v_image, v_transmittance, h, w)
+        v_out = np.zeros((h * w, 4), np.float32)
+        v_out[:, :3] = vi.reshape(-1, 3)
+        v_out[:, 3] = vt.reshape(-1)
+        return v_out
+
+    def _check_sizes(self, result):
+        model, P = result.model, result.num_pairs
+        m, n, k = model.num_triangles, model.num_vertices, model.sh_size
+        for name, nbytes in (("backward pair statistics", 4 * NSTAT * P),
+                             ("backward triangle statistics", 4 * NSTAT * m),
+                             ("backward corner gradients", 32 * 3 * m), ("v_sh", 12 * n * k)):
+            self.ctx.check_size(name, nbytes)
+
+    def _outputs(self, out, n, k):
+        """The gradient buffers: the caller's (checked) or new ones."""
+        c = self.ctx
+        if out is None:
+            return dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh"),
+                        v_opacity=c.buffer(4 * n, "v_opacity"))
+        for key, nbytes in (("v_positions", 12 * n), ("v_sh", 12 * n * k), ("v_opacity", 4 * n)):
+            if key not in out or out[key].size < nbytes:
+                raise ValueError(f"out[{key!r}]: missing or smaller than {nbytes} bytes")
+        return {key: out[key] for key in ("v_positions", "v_sh", "v_opacity")}
+
+    def _record(self, rec, result, v_out, out):
+        """Record and submit every stage (one submit per timing label); returns the scratch buffers."""
+        r, c = self.renderer, self.ctx
+        cam, model = result.camera, result.model
+        h, w = cam.height, cam.width
+        m, n = model.num_triangles, model.num_vertices
+        tx, ty, _ = r.tiles(cam)
+        P = result.num_pairs
+        b = result.buffers
+        dev = result.model_buffers if getattr(result, "model_buffers", None) is not None else r.upload_model(model)
+        params = r.frame_params(model, cam, result.sigma, np.asarray(result.background), result.near, P)
+        pkeys = c.buffer(4 * P, "pair_keys")
+        pvals = c.upload(np.arange(P, dtype=np.uint32), "pair_ids")
+        buf = dict(v_out=v_out if isinstance(v_out, wgpu.GPUBuffer) else c.upload(v_out, "v_out"),
+                   partials=c.buffer(4 * NSTAT * P, "partials"),
+                   tri_stats=c.buffer(4 * NSTAT * m, "tri_stats"), vertex_sums=c.buffer(32 * n, "vertex_sums"),
+                   corner_grads=c.buffer(32 * 3 * m, "corner_grads"), state=c.buffer(16 * h * w, "backward_state"),
+                   work=c.buffer(16, "backward_work"))
+        # the longest tile list sizes the passes of rasterize_backward; the forward already
+        # read it back, so no second readback here
+        max_range = int(result.max_tile_pairs)
+        prof = rec.profiler
+        rec.start()
+        self.prepare(rec.encoder, params, b["image"], b["final_t"], b["n_contrib"], buf["v_out"], buf["state"],
+                     h * w, prof)
+        self.raster(rec.encoder, params, b["ranges"], b["pair_tris"], b["tris"], buf["v_out"], buf["state"],
+                    buf["partials"], buf["work"], tx, ty, max_range, prof)
+        rec.submit("rasterize_backward")
+        # each triangle's pairs together, in tile order (stable sort by triangle), then summed
+        rec.encoder.copy_buffer_to_buffer(b["pair_tris"], 0, pkeys, 0, 4 * P)
+        tbits = max(1, int(m - 1).bit_length())
+        pk, pv = self.pair_sort.record(rec.encoder, pkeys, pvals, P, tbits, prof)
+        self.pair_sum.record(rec.encoder, pk, pv, buf["partials"], P, NSTAT // 4, buf["tri_stats"], prof,
+                             "pair_reduce")
+        rec.submit("pair_reduce")
+        self.project(rec.encoder, params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"],
+                     b["tris"], b["pixel_rects"], buf["tri_stats"], buf["corner_grads"], m, prof)
+        rec.submit("project_backward")
+        skeys, svals = self._corner_order(rec.encoder, model, dev["triangles"], m, n, prof)
+        self.corner_sum.record(rec.encoder, skeys, svals, buf["corner_grads"], 3 * m, 2, buf["vertex_sums"], prof,
+                               "corner_sum")
+        rec.submit("corner_sum")
+        self.vertex(rec.encoder, params, dev["positions"], dev["sh"], buf["vertex_sums"], out["v_positions"],
+                    out["v_sh"], out["v_opacity"], n, prof)
+        rec.submit("vertex_backward")
+        return buf
+
+    def _finish(self, out, n, k, buf, times, read, wait=True):
+        c = self.ctx
+        if not read:
+            if wait:
+                c.wait()
+            return times
+        grads = Grads(v_positions=c.read(out["v_positions"], np.float32, 3 * n).reshape(n, 3),
+                      v_sh=c.read(out["v_sh"], np.float32, 3 * n * k).reshape(n, k, 3),
+                      v_opacity=c.read(out["v_opacity"], np.float32, n))
+        grads.timings = times
+        grads.buffers = dict(buf, **out)
+        return grads
+
+
+_PASSES = weakref.WeakKeyDictionary()
+
+
+def backward(renderer, result, v_image, v_transmittance=None, profile=False, read=True, out=None) -> Grads:
+    """Gradients of ``sum(v_image * image) + sum(v_transmittance * T)`` of a forward pass.
+
+    Args:
+        renderer: the :class:`Renderer` that produced ``result``.
+        result: a :class:`ForwardResult` (its device buffers are read, not changed).
+        v_image: ``[H, W, 3]`` dL/d image, or a device buffer ``[H * W]`` vec4 (dL/d rgb, dL/d T).
+        v_transmittance: ``[H, W]`` dL/d final transmittance, or None.
+        profile: time each stage (``grads.timings``, ms).
+        read, out: see :meth:`BackwardPass.run` (device-resident gradients without readback).
+
+    Returns:
+        :class:`Grads` with ``v_positions [N, 3]``, ``v_sh [N, K, 3]``, ``v_opacity [N]``
+        (float32; w.r.t. the activated opacity given to ``forward``).
+    """
+    if not all(hasattr(result, a) for a in ("renderer", "buffers", "num_pairs", "max_tile_pairs")):  # a ForwardResult
+        raise ValueError(f"result: expected a ForwardResult, got {type(result).__name__}")
+    if result.renderer is not renderer:
+        raise ValueError("result: it was produced by another Renderer")
+    bp = _PASSES.get(renderer)
+    if bp is None:
+        bp = _PASSES[renderer] = BackwardPass(renderer)
+    return bp.run(result, v_image, v_transmittance, profile, read=read, out=out)

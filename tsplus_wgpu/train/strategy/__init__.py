@@ -1,0 +1,9 @@
+"""Topology during training: the pure operations on a :class:`~..state.VertexState`
+(:mod:`.ops`) and the strategy that schedules them (:class:`.topology.TopologyStrategy`)."""
+
+from .ops import (choose_split, densify, new_vertex_count, projected_sizes, prune, remove_unused,
+                  remove_unused_vertices, subdivide, triangle_areas)
+from .topology import TopologyStrategy
+
+__all__ = ["TopologyStrategy", "triangle_areas", "projected_sizes", "remove_unused_vertices", "choose_split",
+           "new_vertex_count", "subdivide", "remove_unused", "prune", "densify"]

@@ -1,0 +1,149 @@
+"""Pure topology operations: mesh edits on index arrays, and the same lifted to a
+:class:`~..state.VertexState` (every function returns new arrays / a new state; nothing here
+touches the device).
+
+* :func:`prune`: drop triangles, then the vertices no triangle uses (rows of every per-vertex
+  array move with the index compaction, order kept).
+* :func:`densify`: midpoint subdivision of chosen triangles; a new vertex gets the mean of its
+  edge's two rows in every per-vertex array (parameters and Adam moments), except the logit,
+  which is the logit of the mean *activated* opacity.
+* :func:`remove_unused_vertices`, :func:`subdivide`, :func:`choose_split`, :func:`triangle_areas`,
+  :func:`projected_sizes`, :func:`new_vertex_count`: the index-level pieces.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..schedules import DENSIFY_MIN_AREA, logit_from_opacity, opacity_from_logit
+
+
+def triangle_areas(positions, triangles):
+    """3D area of each triangle ``[M]``."""
+    p = np.asarray(positions, np.float64)
+    t = np.asarray(triangles, np.int64)
+    if len(t) == 0:
+        return np.zeros(0)
+    return 0.5 * np.linalg.norm(np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]]), axis=1)
+
+
+def projected_sizes(positions, triangles, cameras, near=0.01):
+    """Max over ``cameras`` of the projected size (max vertex-to-centroid distance, px) of each
+    triangle; views where a vertex is at camera z <= near do not count. ``[M]``."""
+    p = np.asarray(positions, np.float64)
+    t = np.asarray(triangles, np.int64)
+    out = np.zeros(len(t))
+    for cam in cameras:
+        w2c = np.asarray(cam.world_to_camera, np.float64)
+        x = p @ w2c[:3, :3].T + w2c[:3, 3]
+        z = x[:, 2]
+        zs = np.where(z > near, z, 1.0)
+        uv = np.stack([cam.fx * x[:, 0] / zs + cam.cx, cam.fy * x[:, 1] / zs + cam.cy], axis=1)
+        tri_uv = uv[t]                                            # [M, 3, 2]
+        c = tri_uv.mean(axis=1, keepdims=True)
+        size = np.linalg.norm(tri_uv - c, axis=2).max(axis=1)
+        ok = (z[t] > near).all(axis=1)
+        out = np.where(ok, np.maximum(out, size), out)
+    return out
+
+
+def remove_unused_vertices(triangles, num_vertices):
+    """Returns ``(triangles with compacted indices, old_from_new [V'])``; vertex order kept."""
+    t = np.asarray(triangles, np.int64).reshape(-1, 3)
+    used = np.zeros(int(num_vertices), bool)
+    used[t.ravel()] = True
+    new_from_old = np.cumsum(used) - 1
+    return new_from_old[t], np.flatnonzero(used)
+
+
+def choose_split(weights, areas, n, largest, rng, min_area=DENSIFY_MIN_AREA):
+    """Triangles to split: ``n`` drawn without replacement with probability proportional to
+    ``weights`` (0 where ``areas < min_area``; never more than have a non-zero probability),
+    then the ``largest`` by area not drawn already. Nothing when ``n <= 0``. Returns indices
+    in that order (int64)."""
+    n = int(n)
+    m = len(weights)
+    if n <= 0 or m == 0:
+        return np.zeros(0, np.int64)
+    p = np.where(np.asarray(areas) >= min_area, np.maximum(np.asarray(weights, np.float64), 0.0), 0.0)
+    p = np.where(np.isfinite(p), p, 0.0)
+    k = min(n, int(np.count_nonzero(p)))
+    drawn = rng.choice(m, size=k, replace=False, p=p / p.sum()) if k > 0 else np.zeros(0, np.int64)
+    big = np.argsort(-np.asarray(areas, np.float64), kind="stable")[:int(largest)]
+    big = big[~np.isin(big, drawn)]
+    return np.concatenate([drawn, big]).astype(np.int64)
+
+
+def _edge_keys(triangles, chosen, num_vertices):
+    t = np.asarray(triangles, np.int64)[chosen]                       # [C, 3]
+    a, b, c = t[:, 0], t[:, 1], t[:, 2]
+    e0 = np.stack([np.stack([a, b], 1), np.stack([b, c], 1), np.stack([c, a], 1)], axis=1)  # [C, 3, 2]
+    lo, hi = e0.min(axis=2), e0.max(axis=2)
+    return lo * int(num_vertices) + hi, lo, hi                       # [C, 3]
+
+
+def new_vertex_count(triangles, chosen, num_vertices):
+    """Midpoint vertices that splitting the first j chosen triangles adds, for every j: ``[C + 1]``."""
+    keys, _, _ = _edge_keys(triangles, chosen, num_vertices)
+    _, first = np.unique(keys.ravel(), return_index=True)
+    first_tri = np.sort(first // 3)
+    return np.searchsorted(first_tri, np.arange(len(chosen) + 1), side="left")
+
+
+def subdivide(triangles, chosen, num_vertices):
+    """Midpoint subdivision of the ``chosen`` triangles (each -> 4, parents removed).
+
+    Returns ``(triangles [M'], edges [E, 2], parent [M'])``: unchosen triangles first in their
+    order, then 4 children per chosen triangle; midpoint vertex ``num_vertices + e`` lies on
+    edge ``edges[e]`` (one per distinct edge: shared between chosen neighbours); ``parent``
+    is the old index of each new triangle. Orientation is kept."""
+    t = np.asarray(triangles, np.int64).reshape(-1, 3)
+    chosen = np.asarray(chosen, np.int64)
+    n = int(num_vertices)
+    keep = np.ones(len(t), bool)
+    keep[chosen] = False
+    if len(chosen) == 0:
+        return t.copy(), np.zeros((0, 2), np.int64), np.arange(len(t))
+    keys, lo, hi = _edge_keys(t, chosen, n)
+    uniq, first, inv = np.unique(keys.ravel(), return_index=True, return_inverse=True)
+    edges = np.stack([lo.ravel()[first], hi.ravel()[first]], axis=1)
+    mid = n + inv.reshape(-1, 3)                                      # [C, 3]: m_ab, m_bc, m_ca
+    a, b, c = t[chosen, 0], t[chosen, 1], t[chosen, 2]
+    mab, mbc, mca = mid[:, 0], mid[:, 1], mid[:, 2]
+    children = np.stack([np.stack([a, mab, mca], 1), np.stack([mab, b, mbc], 1),
+                         np.stack([mca, mbc, c], 1), np.stack([mab, mbc, mca], 1)], axis=1).reshape(-1, 3)
+    out = np.concatenate([t[keep], children])
+    parent = np.concatenate([np.flatnonzero(keep), np.repeat(chosen, 4)])
+    return out, edges, parent
+
+
+# ---------------------------------------------------------------------- on a VertexState
+
+
+def remove_unused(state):
+    """``state`` without the vertices no triangle uses (indices compacted, order kept)."""
+    tris, old_from_new = remove_unused_vertices(state.triangles, state.n)
+    return state.take_vertices(old_from_new, tris)
+
+
+def prune(state, drop):
+    """``state`` without the triangles where ``drop [M]`` is True and without the vertices
+    that leaves unused."""
+    return remove_unused(state.take_triangles(~np.asarray(drop, bool)))
+
+
+def densify(state, chosen, floor):
+    """Split the ``chosen`` triangles of ``state`` into 4 each (:func:`subdivide`): children
+    inherit their parent's max weight; a midpoint vertex gets the mean of its edge's two rows
+    (in float64 when ``state`` is) and the logit of the mean opacity at opacity floor
+    ``floor``."""
+    tris, edges, parent = subdivide(state.triangles, chosen, state.n)
+    a, b = edges[:, 0], edges[:, 1]
+    rows = {key: 0.5 * (arr[a] + arr[b]) for key, arr in state.vertex_arrays().items()}
+    op = opacity_from_logit(state.logits, floor)
+    rows["logits"] = logit_from_opacity(0.5 * (op[a] + op[b]), floor)
+    return state.append_vertices(rows, tris, state.weights()[parent])
+
+
+__all__ = ["triangle_areas", "projected_sizes", "remove_unused_vertices", "choose_split", "new_vertex_count",
+           "subdivide", "remove_unused", "prune", "densify"]
