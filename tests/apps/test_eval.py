@@ -45,6 +45,19 @@ def test_eval_poisson_baseline(tmp_path, capsys):
     assert np.isfinite(res["mean_psnr"]) and res["mean_psnr"] > 10
 
 
+def test_poisson_baseline_is_deterministic():
+    """Two Poisson baselines of the same points are the same mesh (pycolmap's Poisson with several
+    threads orders and places vertices differently from run to run)."""
+    from tsplus_wgpu.apps.evaluate import poisson_baseline
+    from tsplus_wgpu.data import load_procedural
+    scene = load_procedural("tiny")
+    a, b = poisson_baseline(scene, depth=6), poisson_baseline(scene, depth=6)
+    assert a.num_triangles > 100
+    np.testing.assert_array_equal(a.positions, b.positions)
+    np.testing.assert_array_equal(a.triangles, b.triangles)
+    np.testing.assert_array_equal(a.sh, b.sh)
+
+
 def test_eval_bad_input(gt_mesh, tmp_path, capsys):
     for argv, msg in ((["eval", str(tmp_path / "nope"), "procedural:tiny"], "no such run"),
                       (["eval", str(gt_mesh)], "expected RUN_OR_MESH SCENE"),
