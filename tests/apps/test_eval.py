@@ -20,12 +20,12 @@ def gt_mesh(tmp_path_factory):
 def test_eval_gt_mesh(gt_mesh, tmp_path, capsys):
     out = tmp_path / "ev"
     assert main(["eval", str(gt_mesh), "procedural:tiny", "--views", "all", "--supersample", "2",
-                 "--out", str(out), "--images", "2"]) == 0
+                 "--out", str(out), "--write-images", "2"]) == 0
     text = capsys.readouterr().out
     assert "connectivity:" in text and "mean" in text
     res = json.loads((out / "metrics.json").read_text())
     assert len(res["views"]) == 8 and res["supersample"] == 2
-    assert res["mean_psnr"] > 20 and 0 < res["mean_ssim"] <= 1
+    assert res["mean_psnr"] > 20 and 0 < res["mean_ssim"] <= 1 and res["mean_coverage"] > 0.99
     # the ground-truth mesh is opaque and non-overlapping: the splatting renderer agrees with the mesh
     # renderer up to edges (no supersampling here in the splat column)
     assert abs(res["mean_splat_psnr"] - res["mean_psnr"]) < 1.0
@@ -36,6 +36,39 @@ def test_eval_gt_mesh(gt_mesh, tmp_path, capsys):
     assert sorted(p.name for p in out.glob("view_*.png")) == ["view_000.png", "view_001.png"]
 
 
+def _half_quad(cam, depth=2.0):
+    """Two triangles covering exactly the left half of ``cam``'s image at camera depth ``depth``."""
+    us, vs = [0.0, cam.width / 2, cam.width / 2, 0.0], [0.0, 0.0, cam.height, cam.height]
+    xc = np.array([[(u - cam.cx) / cam.fx * depth, (v - cam.cy) / cam.fy * depth, depth] for u, v in zip(us, vs)])
+    xw = (xc - cam.t) @ cam.R          # x_world = R^T (x_cam - t)
+    return xw, np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+
+
+def test_coverage_half_full_and_empty():
+    """Coverage is the fraction of pixels drawn: ~0.5 for a quad over half the image, ~1 for the
+    ground-truth mesh of the procedural scene, 0 for an empty mesh; and it is exactly where a render
+    on black and one on white differ."""
+    from tsplus_wgpu.apps.evaluate import evaluate_mesh, mean_coverage
+    from tsplus_wgpu.data import load_procedural
+    from tsplus_wgpu.render.mesh_renderer import MeshRenderer
+    from tsplus_wgpu.types import SH_C0, TriangleModel
+    scene = load_procedural("tiny")
+    mr = MeshRenderer()
+    cam = scene.cameras[0]
+    pos, tri = _half_quad(cam)
+    half = TriangleModel(pos, tri, np.full((4, 1, 3), (0.7 - 0.5) / SH_C0), np.ones(4))
+    (row,) = evaluate_mesh(half, scene, [0], mr, supersample=2)
+    assert abs(row["coverage"] - 0.5) < 0.03, row["coverage"]
+    black = mr.render(half, cam, supersample=2, background=(0, 0, 0)).image
+    white = mr.render(half, cam, supersample=2, background=(1, 1, 1)).image
+    not_drawn = np.abs(white.astype(np.float64) - black).mean(-1)
+    assert abs((1 - not_drawn.mean()) - row["coverage"]) < 1e-6
+    rows = evaluate_mesh(demo_model(0), scene, range(len(scene.cameras)), mr, supersample=2)
+    assert min(r["coverage"] for r in rows) > 0.99 and mean_coverage(rows) > 0.99
+    empty = TriangleModel(np.zeros((0, 3)), np.zeros((0, 3), np.int32), np.zeros((0, 1, 3)), np.ones(0))
+    assert evaluate_mesh(empty, scene, [0], mr, supersample=2)[0]["coverage"] == 0.0
+
+
 def test_eval_poisson_baseline(tmp_path, capsys):
     out = tmp_path / "pois"
     assert main(["eval", "--baseline", "poisson", "procedural:tiny", "--out", str(out), "--supersample", "1",
@@ -43,6 +76,8 @@ def test_eval_poisson_baseline(tmp_path, capsys):
     res = json.loads((out / "metrics.json").read_text())
     assert res["mesh"] == "baseline:poisson" and res["connectivity"]["triangles"] > 100
     assert np.isfinite(res["mean_psnr"]) and res["mean_psnr"] > 10
+    assert 0.5 < res["mean_coverage"] <= 1 and all(0 <= r["coverage"] <= 1 for r in res["views"])
+    assert "coverage" in capsys.readouterr().out
 
 
 def test_poisson_baseline_is_deterministic():
@@ -56,6 +91,9 @@ def test_poisson_baseline_is_deterministic():
     np.testing.assert_array_equal(a.positions, b.positions)
     np.testing.assert_array_equal(a.triangles, b.triangles)
     np.testing.assert_array_equal(a.sh, b.sh)
+    # the lowest-density 5 % of the surface's vertices are trimmed (with their triangles)
+    untrimmed = poisson_baseline(scene, depth=6, trim=0.0)
+    assert 0.9 * untrimmed.num_vertices < a.num_vertices < 0.97 * untrimmed.num_vertices
 
 
 def test_eval_bad_input(gt_mesh, tmp_path, capsys):
@@ -65,3 +103,24 @@ def test_eval_bad_input(gt_mesh, tmp_path, capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and msg in err, err
+
+
+def test_poisson_normals_face_the_cameras_that_see_them():
+    """Points of the plane z = 0 seen by two cameras above it: their normals point up (+z), even
+    though the nearest camera centre is a camera below the plane that looks away from it."""
+    from tsplus_wgpu.apps.evaluate import oriented_normals
+    from tsplus_wgpu.types import Camera
+
+    def down_camera(centre):              # looks along world -z
+        m = np.eye(4)
+        m[:3, :3] = np.diag([1.0, -1.0, -1.0])
+        m[:3, 3] = -m[:3, :3] @ np.asarray(centre, np.float64)
+        return Camera(64, 48, 50.0, 50.0, 32.0, 24.0, m)
+
+    g = np.linspace(-0.4, 0.4, 9)
+    pts = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    pts = np.concatenate([pts, 0.01 * np.sin(7 * pts[:, :1])], axis=1)
+    cams = [down_camera((0.1, 0, 2.0)), down_camera((-0.1, 0, 2.5)), down_camera((0, 0, -0.3))]
+    n = oriented_normals(pts, cams)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-9)
+    assert (n[:, 2] > 0.9).all()

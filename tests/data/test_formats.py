@@ -29,6 +29,17 @@ def tiny():
     return load_procedural("tiny", seed=3, point_noise=0.0)
 
 
+@pytest.fixture(scope="module")
+def tiny2(tiny):
+    """The tiny scene at twice its size (128x96): a downscale by 2 still leaves >= 32 px images."""
+    from types import SimpleNamespace
+
+    from tsplus_wgpu.data.images import resize_area
+    return SimpleNamespace(cameras=[c.scaled(2.0) for c in tiny.cameras],
+                           images=[resize_area(im, 128, 96) for im in tiny.images],
+                           points=tiny.points, point_colors=tiny.point_colors)
+
+
 def write_colmap_text(root: Path, scene, n_points=200, model="PINHOLE", params=None):
     """COLMAP text model (classic 3-file layout) + images/ for a procedural scene."""
     import pycolmap
@@ -131,22 +142,23 @@ def test_llff_round_trip_and_split(tmp_path, tiny):
     assert any("frusta" in w for w in sc.warnings)
 
 
-def test_downscale_scales_intrinsics(tmp_path, tiny):
-    write_colmap_text(tmp_path, tiny)
+def test_downscale_scales_intrinsics(tmp_path, tiny2):
+    write_colmap_text(tmp_path, tiny2)
     sc = load_scene(tmp_path, downscale=2)
-    c, c0 = sc.cameras[0], tiny.cameras[0]
-    assert (c.width, c.height) == (32, 24)
+    c, c0 = sc.cameras[0], tiny2.cameras[0]
+    assert (c.width, c.height) == (64, 48)
     np.testing.assert_allclose([c.fx, c.cx, c.cy], [c0.fx / 2, c0.cx / 2, c0.cy / 2])
 
 
-def test_images_n_folder_used_for_downscale(tmp_path, tiny):
-    write_colmap_text(tmp_path, tiny)
+def test_images_n_folder_used_for_downscale(tmp_path, tiny2):
+    write_colmap_text(tmp_path, tiny2)
     (tmp_path / "images_2").mkdir()
-    for i, img in enumerate(tiny.images):
+    for i, img in enumerate(tiny2.images):
         write_image(tmp_path / "images_2" / f"view_{i:02d}.png", img[::2, ::2])
     sc = load_scene(tmp_path, downscale=2)
-    assert sc.cameras[0].width == 32 and abs(sc.cameras[0].fx - tiny.cameras[0].fx / 2) < 1e-9
-    np.testing.assert_allclose(sc.images[3], tiny.images[3][::2, ::2], atol=1 / 255)
+    assert sc.cameras[0].width == 64 and abs(sc.cameras[0].fx - tiny2.cameras[0].fx / 2) < 1e-9
+    np.testing.assert_allclose(sc.images[3], tiny2.images[3][::2, ::2], atol=1 / 255)
+    assert sc.image_dir == str(tmp_path / "images_2") and "1/2 size" in sc.summary()
 
 
 def test_split_none_and_every_k(tmp_path, tiny):

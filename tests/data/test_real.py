@@ -109,11 +109,14 @@ def test_fox_undistortion_by_triangulation(tmp_path):
 
 
 def test_fox_points_auto_triangulates(tmp_path):
-    sc = load_scene(scene_dir("fox"), downscale=8, frames=list(range(0, 20, 2)), cache_dir=tmp_path)
+    sc = load_scene(scene_dir("fox"), downscale=8, frames=list(range(0, 10, 2)), cache_dir=tmp_path)
     assert sc.points_source == "triangulated" and len(sc.points) > 200
     assert any("triangulated" in w for w in sc.warnings)
     # triangulated points lie in front of the cameras that took the images
     front = np.mean([(sc.points @ c.R.T + c.t)[:, 2] > 0 for c in sc.cameras])
     assert front > 0.95
-    again = load_scene(scene_dir("fox"), downscale=8, frames=list(range(0, 20, 2)), cache_dir=tmp_path)
+    again = load_scene(scene_dir("fox"), downscale=8, frames=list(range(0, 10, 2)), cache_dir=tmp_path)
     assert np.array_equal(again.points, sc.points)  # cached
+    # triangulated at full size: another downscale reuses the same points
+    other = load_scene(scene_dir("fox"), downscale=4, frames=list(range(0, 10, 2)), cache_dir=tmp_path)
+    assert np.array_equal(other.points, sc.points) and any("cached" in w for w in other.warnings)

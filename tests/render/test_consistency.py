@@ -15,7 +15,7 @@ def test_mesh_and_trainer_renderer_agree_after_training(tmp_path):
     run = tmp_path / "run"
     assert main(["train", "procedural:tiny", "--out", str(run), "--preset", "quick", "--iterations", "150",
                  "--seed", "0", "--topology", "off", "--no-progress"]) == 0
-    assert main(["eval", str(run), "procedural:tiny", "--out", str(tmp_path / "eval"), "--images", "0"]) == 0
+    assert main(["eval", str(run), "procedural:tiny", "--out", str(tmp_path / "eval"), "--write-images", "0"]) == 0
     rep = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     mesh, splat = rep["mean_psnr"], rep["mean_splat_psnr"]
     assert mesh > 15.0 and splat > 15.0          # a real reconstruction, not two blank images

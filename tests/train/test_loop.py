@@ -134,9 +134,12 @@ def test_cli_train_end_to_end(tmp_path):
     assert len(mesh.faces) == metrics["mesh_triangles"] > 0
     assert mesh.visual.vertex_colors.shape == (len(mesh.vertices), 4)
     assert metrics["mesh_psnr"] > 10 and metrics["iterations"] == 16
-    # resuming a finished run is a no-op that re-exports
+    # resuming a finished run needs --overwrite; then it is a no-op that re-exports
     r = _cli("train", "procedural:tiny", "--out", out, "--preset", "quick", "--iterations", 16, "--no-progress",
              "--resume")
+    assert r.returncode == 2 and "--overwrite" in r.stderr
+    r = _cli("train", "procedural:tiny", "--out", out, "--preset", "quick", "--iterations", 16, "--no-progress",
+             "--resume", "--overwrite")
     assert r.returncode == 0, r.stderr
     assert "from iteration 16 to 16" in r.stdout
 
@@ -180,4 +183,4 @@ def test_cli_config_file_and_flags_override(tmp_path):
         {k: v for k, v in cfg.items() if k not in ("iterations", "extra")}
     (tmp_path / "bad.json").write_text('{"iterations": 5, "learning_rate": 1}')
     r = _cli("train", "procedural:tiny", "--out", tmp_path / "c", "--config", tmp_path / "bad.json")
-    assert r.returncode == 2 and "unknown keys ['learning_rate']" in r.stderr
+    assert r.returncode == 2 and "unknown key" in r.stderr and "learning_rate" in r.stderr

@@ -364,7 +364,7 @@ def test_cli_train_with_normals(tiny, tiny_maps, tmp_path):
     assert any("normal_loss" in json.loads(x) for x in (tmp_path / "run" / "log.jsonl").read_text().splitlines())
     # tsplus eval --normals: the mesh's normal error on the evaluated views that have a map
     r = subprocess.run([sys.executable, "-m", "tsplus_wgpu.cli", "eval", str(tmp_path / "run"), "procedural:tiny",
-                        "--views", "train", "--normals", str(tmp_path / "n"), "--no-splat", "--images", "0"],
+                        "--views", "train", "--normals", str(tmp_path / "n"), "--no-splat", "--write-images", "0"],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert "normal error vs" in r.stdout and "on 6 of 7 views" in r.stdout

@@ -56,6 +56,7 @@ def load_run(path):
                 cfg = json.loads(cfg_path.read_text())
                 info["scene"] = cfg.get("extra", {}).get("scene")
                 info["downscale"] = cfg.get("extra", {}).get("downscale", 1)
+                info["images"] = cfg.get("extra", {}).get("images")
                 info["background"] = cfg.get("background")
             except Exception:
                 pass

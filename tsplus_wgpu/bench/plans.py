@@ -25,7 +25,7 @@ class ScenePlan:
     profile_every: int = 10
     blend_repeats: int = 5
     peak_repeats: int = 5
-    poisson_depth: int = 8
+    poisson_depth: int = 9
     long: bool = True
     ablations: tuple = ()            # ablation names (default: all)
     budget_runs: bool = True

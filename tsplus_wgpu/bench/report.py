@@ -124,13 +124,14 @@ def headline_rows(report):
             rows.append(dict(scene=s["name"], resolution=res, run=label, iterations=r["iterations"],
                              train_seconds=r["train_seconds"], its_per_s=r["its_per_s"],
                              time_vs_quick=r["train_seconds"] / q["train_seconds"] if q.get("train_seconds") else None,
-                             mesh_psnr=f["mesh_psnr"],
+                             mesh_psnr=f["mesh_psnr"], coverage=f.get("mesh_coverage"),
                              mesh_ssim=f["mesh_ssim"], soft_psnr=f["soft_psnr"], mesh_vertices=f["mesh_vertices"],
                              mesh_triangles=f["mesh_triangles"]))
         p = s.get("poisson")
         if p and "error" not in p:
             rows.append(dict(scene=s["name"], resolution=res, run=f"Poisson (depth {p['depth']})", iterations=None,
                              train_seconds=p["seconds"], its_per_s=None, time_vs_quick=None, mesh_psnr=p["psnr"],
+                             coverage=p.get("coverage"),
                              mesh_ssim=p["ssim"],
                              soft_psnr=None, mesh_vertices=p["vertices"], mesh_triangles=p["triangles"]))
     return rows
@@ -144,16 +145,17 @@ def _f(x, fmt="{:.2f}", none="-"):
 
 def headline_markdown(report):
     """The headline table in markdown."""
-    lines = ["| scene | resolution | run | iterations | train s | x quick | it/s | mesh PSNR | mesh SSIM | soft PSNR "
-             "| vertices | triangles |", "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| scene | resolution | run | iterations | train s | x quick | it/s | mesh PSNR | mesh SSIM | coverage "
+             "| soft PSNR | vertices | triangles |", "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in headline_rows(report):
         if "status" in r:
-            lines.append(f"| {r['scene']} | {r['status']} | | | | | | | | | | |")
+            lines.append(f"| {r['scene']} | {r['status']} | | | | | | | | | | | |")
             continue
         lines.append(f"| {r['scene']} | {r['resolution']} | {r['run']} | {_f(r['iterations'], '{:d}')} | "
                      f"{_f(r['train_seconds'], '{:.0f}')} | {_f(r['time_vs_quick'])} | {_f(r['its_per_s'])} | "
                      f"**{_f(r['mesh_psnr'])}** | "
-                     f"{_f(r['mesh_ssim'], '{:.3f}')} | {_f(r['soft_psnr'])} | {r['mesh_vertices']:,} | "
+                     f"{_f(r['mesh_ssim'], '{:.3f}')} | {_f(r.get('coverage'), '{:.1%}')} | {_f(r['soft_psnr'])} | "
+                     f"{r['mesh_vertices']:,} | "
                      f"{r['mesh_triangles']:,} |")
     return "\n".join(lines)
 

@@ -47,6 +47,10 @@ from .plans import curve_iterations, eval_views
 from .report import (REPORT_VERSION, ablation_table, budget_table, headline_markdown, json_safe, one_line,
                      summarize_stages, write_report)
 
+# the Poisson baseline's method, in its cache key: 2 = screened (point weight 0.1), normals oriented to
+# the cameras that see each point, lowest-density 5 % of vertices trimmed (1: distance trim, nearest camera)
+POISSON_VERSION = 2
+
 
 class RunMonitor(TrainCallback):
     """A training callback for one bench run: profiles 1 in ``profile_every`` steps and every
@@ -132,7 +136,7 @@ class Bench:
     def evaluate_point(self, t, scene, views):
         """Held-out PSNR/SSIM of the exported opaque mesh (mesh renderer, 4x4) and of the soft
         model as trained (trainer renderer at the current sigma, 4x)."""
-        from ..apps.evaluate import evaluate_mesh
+        from ..apps.evaluate import evaluate_mesh, mean_coverage
         from ..io.metrics import psnr, ssim
         from ..train.trainer import Trainer
         t0 = time.perf_counter()
@@ -143,13 +147,15 @@ class Bench:
             rows = evaluate_mesh(Trainer.mesh_model(pos, tri, col), scene, views, self.mr, supersample=4,
                                  background=bg)
             mp, ms = float(np.mean([r["psnr"] for r in rows])), float(np.mean([r["ssim"] for r in rows]))
+            cov = mean_coverage(rows)
         else:       # nothing survived the final cleanup: the background alone
             imgs = [np.broadcast_to(np.asarray(bg, np.float32), scene.images[v].shape) for v in views]
             mp = float(np.mean([psnr(i, scene.images[v]) for i, v in zip(imgs, views)]))
             ms = float(np.mean([ssim(np.ascontiguousarray(i), scene.images[v]) for i, v in zip(imgs, views)]))
+            cov = 0.0
         return dict(iteration=t.iteration, sigma=t.sched.sigma(t.iteration), model_vertices=t.n, model_triangles=t.m,
                     mesh_vertices=int(len(pos)), mesh_triangles=int(len(tri)), mesh_psnr=mp, mesh_ssim=ms,
-                    soft_psnr=soft_psnr, soft_ssim=soft_ssim, eval_seconds=time.perf_counter() - t0)
+                    mesh_coverage=cov, soft_psnr=soft_psnr, soft_ssim=soft_ssim, eval_seconds=time.perf_counter() - t0)
 
     def _run_bar(self, plan, label, iterations):
         if not self.progress:
@@ -309,10 +315,12 @@ class Bench:
         """The classical baseline, cached like a run."""
         base_key = dict(scene=plan.scene, downscale=plan.downscale, test_views=plan.test_views)
         try:
-            rec["poisson"] = self.cached(plan.name, "poisson", dict(base_key, run="poisson", depth=plan.poisson_depth),
+            rec["poisson"] = self.cached(plan.name, "poisson", dict(base_key, run="poisson", depth=plan.poisson_depth,
+                                                                        baseline=POISSON_VERSION),
                                          lambda: self.poisson(scene, views, plan.poisson_depth))
             p = rec["poisson"]
-            self.log(f"  poisson: {p['psnr']:.2f} dB / {p['ssim']:.3f}, {p['vertices']} vertices")
+            self.log(f"  poisson: {p['psnr']:.2f} dB / {p['ssim']:.3f}, coverage {p.get('coverage', 0):.1%}, "
+                     f"{p['vertices']} vertices")
         except KeyboardInterrupt:
             raise
         except Exception as exc:
@@ -343,13 +351,14 @@ class Bench:
 
     def poisson(self, scene, views, depth):
         """The Poisson reconstruction of the scene's points, evaluated like the exported mesh."""
-        from ..apps.evaluate import evaluate_mesh, poisson_baseline
+        from ..apps.evaluate import evaluate_mesh, mean_coverage, poisson_baseline
         t0 = time.perf_counter()
         model = poisson_baseline(scene, depth=depth)
         rows = evaluate_mesh(model, scene, views, self.mr, supersample=4,
                              background=tuple(float(x) for x in scene.background))
         return dict(depth=depth, psnr=float(np.mean([r["psnr"] for r in rows])),
-                    ssim=float(np.mean([r["ssim"] for r in rows])), vertices=model.num_vertices,
+                    ssim=float(np.mean([r["ssim"] for r in rows])), coverage=mean_coverage(rows),
+                    vertices=model.num_vertices,
                     triangles=model.num_triangles, seconds=time.perf_counter() - t0, points=int(len(scene.points)))
 
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..apps.evaluate import evaluate_mesh, normal_error_summary, poisson_baseline
-from ..data import load_scene_arg
+from ..apps.evaluate import evaluate_mesh, mean_coverage, normal_error_summary, poisson_baseline
+from .scenes import add_images_arg, load_cli_scene, scene_warnings
 from ..errors import UserError
 from ..io.atomic import write_json
 from ..apps.runs import load_run
@@ -22,25 +22,30 @@ from ..types import TriangleModel
 def add_parser(sub):
     p = sub.add_parser("eval", help="mesh-based novel-view metrics (PSNR/SSIM) with the depth-tested mesh renderer",
                        description="Draw the held-out views of SCENE with the depth-tested mesh renderer (what an "
-                                   "engine shows) and report PSNR/SSIM per view and mean (table + JSON), "
+                                   "engine shows) and report PSNR/SSIM and coverage (the fraction of pixels the mesh "
+                                   "draws) per view and mean (table + JSON), "
                                    "ground truth | render | error heat-map images, the trainer renderer's PSNR on "
                                    "the same views and the connectivity report. `tsplus eval --baseline poisson "
                                    "SCENE` evaluates a Poisson mesh of the scene's SfM points the same way.")
     p.add_argument("inputs", nargs="+", metavar="RUN_OR_MESH SCENE",
-                   help="run folder or mesh file, then the scene (folder or procedural[:tiny|small|demo]); with "
-                        "--baseline only SCENE")
+                   help="run folder or mesh file, then the scene (folder or procedural[:tiny|small|demo]; default "
+                        "for a run: the scene, --downscale and --images it was trained on, from its config.json); "
+                        "with --baseline only SCENE")
     p.add_argument("--baseline", choices=["poisson"], default=None, help="evaluate a classical baseline instead")
     p.add_argument("--out", default=None, help="output folder (default RUN/eval, or runs/eval-<name>)")
     p.add_argument("--supersample", type=int, default=4, help="s x s supersampling (default 4, as the paper's eval)")
     p.add_argument("--views", choices=["test", "train", "all"], default="test",
                    help="which views (default test: the held-out ones; training views when there are none)")
-    p.add_argument("--downscale", type=int, default=1, help="shrink the scene's images (default 1)")
-    p.add_argument("--images", type=int, default=4, help="side-by-side images to write (default 4)")
+    p.add_argument("--downscale", type=int, default=None,
+                   help="shrink the scene's images (default 1, or the run's when SCENE is taken from the run)")
+    p.add_argument("--write-images", dest="write_images", type=int, default=4, metavar="N",
+                   help="ground truth | render | error images to write (default 4)")
+    add_images_arg(p)
     p.add_argument("--no-splat", action="store_true", help="skip the trainer renderer's PSNR column")
     p.add_argument("--interpolation", choices=["perspective", "linear"], default="perspective",
                    help="colour interpolation: perspective-correct as engines (default) or linear in screen space "
                         "as the splatting model")
-    p.add_argument("--poisson-depth", type=int, default=8, help="Poisson octree depth (default 8)")
+    p.add_argument("--poisson-depth", type=int, default=9, help="Poisson octree depth (default 9)")
     p.add_argument("--normals", default=None, metavar="DIR",
                    help="also report the mesh's normal error against these normal maps (the files and convention of "
                         "`tsplus train --normals`) on the evaluated views that have one: mean 1 - <N, P> and mean "
@@ -50,16 +55,17 @@ def add_parser(sub):
 
 
 def _table(rows, has_splat):
-    head = f"{'view':>6}  {'name':<24}{'PSNR':>8}{'SSIM':>8}" + (f"{'splat PSNR':>12}" if has_splat else "")
+    head = f"{'view':>6}  {'name':<24}{'PSNR':>8}{'SSIM':>8}{'coverage':>10}" + \
+        (f"{'splat PSNR':>12}" if has_splat else "")
     lines = [head]
     for r in rows:
-        lines.append(f"{r['view']:>6}  {r['name'][:23]:<24}{r['psnr']:>8.2f}{r['ssim']:>8.3f}"
+        lines.append(f"{r['view']:>6}  {r['name'][:23]:<24}{r['psnr']:>8.2f}{r['ssim']:>8.3f}{r['coverage']:>10.1%}"
                      + (f"{r.get('splat_psnr', float('nan')):>12.2f}" if has_splat else ""))
     if rows:
         mp = np.mean([r["psnr"] for r in rows])
         ms = np.mean([r["ssim"] for r in rows])
         extra = f"{np.mean([r['splat_psnr'] for r in rows]):>12.2f}" if has_splat else ""
-        lines.append(f"{'mean':>6}  {'':<24}{mp:>8.2f}{ms:>8.3f}{extra}")
+        lines.append(f"{'mean':>6}  {'':<24}{mp:>8.2f}{ms:>8.3f}{mean_coverage(rows):>10.1%}{extra}")
     return "\n".join(lines)
 
 
@@ -69,9 +75,26 @@ def _inputs(args):
         if len(args.inputs) != 1:
             raise UserError("eval --baseline poisson: give only SCENE")
         return None, args.inputs[0]
+    if len(args.inputs) == 1:
+        return args.inputs[0], None
     if len(args.inputs) != 2:
         raise UserError("eval: expected RUN_OR_MESH SCENE (or --baseline poisson SCENE)")
     return tuple(args.inputs)
+
+
+def _run_scene(args, run_arg, info):
+    """``(scene argument, downscale, images)`` of a run evaluated without SCENE: the scene it was
+    trained on (config.json's absolute path), its downscale and image folder unless given."""
+    scene = info.get("scene")
+    if not scene:
+        raise UserError(f"eval: expected RUN_OR_MESH SCENE; {run_arg} does not record the scene it was trained on "
+                        f"(no config.json naming it); give SCENE after it")
+    if not str(scene).startswith("procedural") and not Path(scene).exists():
+        raise UserError(f"eval: {run_arg} was trained on {scene} (its config.json), which does not exist any more; "
+                        f"give SCENE after {run_arg}")
+    downscale = args.downscale if args.downscale is not None else int(info.get("downscale") or 1)
+    images = args.images if args.images is not None else info.get("images")
+    return str(scene), downscale, images
 
 
 def _out_folder(args, run_arg):
@@ -97,16 +120,23 @@ def run(args):
     if args.supersample < 1:
         raise ValueError(f"--supersample: expected an integer >= 1, got {args.supersample}")
     run_arg, scene_arg = _inputs(args)
+    if args.normals and not Path(args.normals).is_dir():     # before anything is written
+        raise ExportError(f"--normals {args.normals}: no such folder")
     t0 = time.perf_counter()
+    downscale, images = (1 if args.downscale is None else args.downscale), args.images
     if run_arg is not None:
         model, info = load_run(run_arg)
         source = info.get("from")
-    scene = load_scene_arg(scene_arg, args.downscale)
+        if scene_arg is None:
+            scene_arg, downscale, images = _run_scene(args, run_arg, info)
+            print(f"scene of the run: {scene_arg}" + (f" (--downscale {downscale})" if downscale != 1 else "")
+                  + (f" (--images {images})" if images else ""))
+    scene = load_cli_scene(scene_arg, downscale, images=images)     # prints its warnings
     if args.baseline:
         tb = time.perf_counter()
         model = poisson_baseline(scene, depth=args.poisson_depth)
-        source = f"Poisson reconstruction of {len(scene.points)} SfM points (depth {args.poisson_depth}) " \
-                 f"in {time.perf_counter() - tb:.1f}s"
+        source = f"screened Poisson reconstruction of {len(scene.points)} {scene.points_source} points (depth " \
+                 f"{args.poisson_depth}, lowest-density 5% trimmed) in {time.perf_counter() - tb:.1f}s"
     # the exported mesh is drawn with its vertex colours: the SH DC term (view-independent), opaque
     model = TriangleModel(model.positions, model.triangles, model.sh[:, :1], np.ones(model.num_vertices))
     if model.num_triangles == 0:
@@ -131,12 +161,13 @@ def run(args):
           f" views, {scene.cameras[0].width}x{scene.cameras[0].height}, supersampling {args.supersample}x"
           f"{args.supersample}")
     bg = tuple(float(x) for x in scene.background)
-    rows = evaluate_mesh(model, scene, views, mr, args.supersample, splat, out, args.images, bg, args.interpolation)
+    rows = evaluate_mesh(model, scene, views, mr, args.supersample, splat, out, args.write_images, bg,
+                         args.interpolation)
     print(_table(rows, splat is not None))
     res = dict(mesh=str(run_arg) if run_arg else "baseline:poisson", source=source, scene=scene_arg,
                adapter=mr.adapter_name, supersample=args.supersample, interpolation=args.interpolation, views=rows,
                mean_psnr=float(np.mean([r["psnr"] for r in rows])), mean_ssim=float(np.mean([r["ssim"] for r in rows])),
-               connectivity=conn, seconds=time.perf_counter() - t0)
+               mean_coverage=mean_coverage(rows), connectivity=conn, seconds=time.perf_counter() - t0, scene_warnings=scene_warnings(scene))
     if splat is not None:
         res["mean_splat_psnr"] = float(np.mean([r["splat_psnr"] for r in rows]))
         res["splat_note"] = "trainer renderer at sigma 1e-4, opacity 1, no supersampling"

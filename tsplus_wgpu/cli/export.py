@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import load_scene_arg
 from ..apps.runs import load_run
 from ..io.export import BAKES, FORMATS, ExportError, bake_views, connectivity, connectivity_line, export
+from .scenes import add_images_arg, load_cli_scene
 
 
 def add_parser(sub):
@@ -26,6 +26,7 @@ def add_parser(sub):
                    help="vertex colour: dc (SH DC term, default) or views (averaged over the training views where "
                         "the vertex is visible; needs the run's scene or --scene)")
     p.add_argument("--scene", default=None, help="scene for --bake views (default: the run's)")
+    add_images_arg(p, help="image folder inside the scene for --bake views (default: the run's, else images)")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
     return p
 
@@ -48,7 +49,8 @@ def run(args):
         scene_arg = args.scene or info.get("scene")
         if not scene_arg:
             raise ExportError("--bake views: the run names no scene; give --scene")
-        scene = load_scene_arg(scene_arg, int(info.get("downscale") or 1) if not args.scene else 1)
+        images = args.images or (None if args.scene else info.get("images"))
+        scene = load_cli_scene(scene_arg, int(info.get("downscale") or 1) if not args.scene else 1, 0, images)
         from ..render.mesh_renderer import MeshRenderer
         mr = MeshRenderer(args.adapter)
         t0 = time.perf_counter()

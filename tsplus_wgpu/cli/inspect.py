@@ -55,12 +55,12 @@ def run(args) -> int:
                            split=split, points=args.points, on_bad_image="error" if args.strict else "skip",
                            progress=not args.quiet)
     except SceneError as exc:
-        print(f"tsplus inspect: error: {exc}", file=sys.stderr)
+        print(f"tsplus: error: {exc}", file=sys.stderr)
         return 2
     print(scene.summary())
     if getattr(args, "write_normals", None):
         if scene.gt_mesh is None:
-            print(f"tsplus inspect: error: --write-normals: {args.scene} has no ground-truth mesh (only the procedural "
+            print(f"tsplus: error: --write-normals: {args.scene} has no ground-truth mesh (only the procedural "
                   "scene has one)", file=sys.stderr)
             return 2
         from ..data.normals import write_normal_maps  # noqa: PLC0415

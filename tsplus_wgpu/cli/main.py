@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import os
 import sys
 
 from ..errors import UserError
@@ -26,6 +28,7 @@ examples:
 environment:
   TSPLUS_ADAPTER   adapter to use (substring of its name; 'lavapipe' = Mesa's CPU driver)
   TSPLUS_DATA      folder of real scenes for tests and benchmarks (default ../shared/data)
+  TSPLUS_DEBUG     1: show the traceback of an error too (for a bug report)
 """
 
 
@@ -52,8 +55,18 @@ def command_module(name):
     return importlib.import_module(f".{COMMANDS[name][0]}", __package__)
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (``tsplus: error: train: ...; see `tsplus train --help```)
+    instead of the usage block; sub-parsers inherit it."""
+
+    def error(self, message):
+        sub = self.prog.split(" ", 1)[1] + ": " if " " in self.prog else ""
+        print(f"tsplus: error: {sub}{message}; see `{self.prog} --help`", file=sys.stderr)
+        self.exit(2)
+
+
 def build_parser():
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="tsplus", description="Triangle Splatting+ on any GPU through WebGPU/Vulkan (wgpu), or on the CPU "
                                    "with Mesa lavapipe.",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -76,12 +89,66 @@ def main(argv=None):
     from ..gpu.context import NoAdapterError
     try:
         return command_module(args.command).run(args)
-    except (UserError, NoAdapterError, SceneError, ValueError, FileNotFoundError) as exc:
-        print(f"tsplus: error: {exc}", file=sys.stderr)
+    except (UserError, NoAdapterError, SceneError, ValueError, OSError, MemoryError) as exc:
+        line = error_line(exc)
+        if line is None:                # not the user's or the environment's doing: a bug, with its traceback
+            raise
+        if os.environ.get("TSPLUS_DEBUG"):
+            import traceback
+            traceback.print_exc()
+        print(f"tsplus: error: {line}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("tsplus: interrupted", file=sys.stderr)
         return 130
+
+
+#: errno -> (what happened, what to do) for a file the command read or wrote
+OS_CAUSES = {
+    errno.ENOSPC: ("no space left on the device", "free some space or write elsewhere (--out)"),
+    errno.EDQUOT: ("disk quota exceeded", "free some space or write elsewhere (--out)"),
+    errno.EROFS: ("the file system is read-only", "write elsewhere (--out)"),
+    errno.EACCES: ("permission denied", "fix the permissions or use another path"),
+    errno.EPERM: ("operation not permitted", "fix the permissions or use another path"),
+    errno.ENOENT: ("no such file or folder", "check the path"),
+    errno.ENOTDIR: ("a part of the path is a file, not a folder", "check the path"),
+    errno.EISDIR: ("is a folder, not a file", "give a file"),
+    errno.EEXIST: ("already exists (a file where a folder is needed?)", "remove it or use another path"),
+    errno.ENAMETOOLONG: ("the name is too long", "use a shorter path"),
+    errno.ELOOP: ("too many levels of symbolic links", "check the path"),
+    errno.EIO: ("input/output error", "check the disk"),
+    errno.EMFILE: ("too many open files", "raise the limit (ulimit -n) or close other programs"),
+    errno.ENFILE: ("too many open files in the system", "close other programs"),
+    errno.ENOMEM: ("out of memory", "free memory or use a smaller scene (--downscale)"),
+}
+
+
+def error_line(exc):
+    """The one line ``tsplus`` prints for ``exc`` (no ``tsplus: error:`` prefix), or None when
+    ``exc`` is a bug that should show its traceback."""
+    if isinstance(exc, UnicodeDecodeError):
+        return (f"a file is not UTF-8 text ({exc.reason} at byte {exc.start}); check the file the command reads "
+                f"(--config, transforms.json, ...) and save it as UTF-8")
+    if isinstance(exc, MemoryError):
+        detail = f" ({exc})" if str(exc) else ""
+        return (f"out of memory{detail}; use smaller settings (--downscale, --max-vertices, --iterations) or a "
+                f"machine with more memory")
+    if isinstance(exc, OSError) and not isinstance(exc, UserError) and exc.errno is not None:
+        return _os_error_line(exc)
+    return str(exc) or type(exc).__name__
+
+
+def _os_error_line(exc):
+    """``FILE: what happened; what to do`` of an :class:`OSError` from the system (disk full,
+    read-only, permission, missing path...); None for one without a file or a known cause."""
+    names = [os.fsdecode(n) for n in (exc.filename, exc.filename2) if n is not None]
+    where = " -> ".join(names)
+    cause, fix = OS_CAUSES.get(exc.errno, (None, None))
+    if cause is None:
+        if not where:
+            return None
+        cause, fix = exc.strerror or str(exc), "check the path and the disk"
+    return f"{where + ': ' if where else ''}{cause}; {fix}"
 
 
 if __name__ == "__main__":

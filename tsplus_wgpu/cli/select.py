@@ -5,11 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..apps.select import find_masks, read_mask, select_triangles, split_model
-from ..data import load_scene_arg
 from ..errors import UserError
 from ..io.atomic import write_json
 from ..apps.runs import load_run
 from ..io.export import export
+from .scenes import add_images_arg, load_cli_scene, scene_warnings
 
 
 def add_parser(sub):
@@ -33,6 +33,7 @@ def add_parser(sub):
     p.add_argument("--scene", default=None,
                    help="scene whose cameras and view names to use (default: the one the run folder records; "
                         "needed for a mesh file)")
+    add_images_arg(p, help="image folder inside the scene (default: the run's, else images)")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
     return p
 
@@ -56,7 +57,8 @@ def run(args):
     out = Path(args.out) if args.out else (run if run.is_dir() else run.parent)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out}: exists and is not a folder")
-    scene = load_scene_arg(scene_arg, int(info.get("downscale") or 1), 0)
+    images = args.images or (None if args.scene else info.get("images"))
+    scene = load_cli_scene(scene_arg, int(info.get("downscale") or 1), 0, images)     # prints its warnings
     paths = find_masks(mask_dir, scene.image_names)
     missing = [name for name, p in zip(scene.image_names, paths) if p is None]
     if len(missing) == len(paths):
@@ -91,7 +93,7 @@ def run(args):
                   triangles=model.num_triangles, visible=int((sel.visible > 0).sum()), selected=sel.num_selected,
                   kept=sel.num_kept, removed=sel.num_kept, remaining=rest.num_triangles,
                   object_vertices=obj.num_vertices, remaining_vertices=rest.num_vertices,
-                  files=[str(p) for p in written])
+                  files=[str(p) for p in written], scene_warnings=scene_warnings(scene))
     write_json(out / "selection.json", report)
     print("wrote " + ", ".join(str(p) for p in written) + f", {out / 'selection.json'}")
     return 0

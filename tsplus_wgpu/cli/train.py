@@ -8,15 +8,20 @@ the preset's default (:func:`~tsplus_wgpu.train.config.preset_defaults`), then t
 
 from __future__ import annotations
 
+import errno
 import json
+import os
+import sys
+import tempfile
 import time
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
-from ..io.atomic import write_bytes, write_image, write_json
-from ..train.config import TrainConfig, cli_options, preset_defaults
+from ..errors import UserError
+from ..io.atomic import describe, remove_orphans, write_bytes, write_error, write_image, write_json
+from ..train.config import TrainConfig, check_settings, cli_options, preset_defaults
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
 _FROM_FLAG = {"topology": lambda v: v == "on", "normals": lambda v: str(Path(v).resolve())}
@@ -42,7 +47,14 @@ def add_parser(sub):
     for name, flag, text, kwargs in cli_options():       # one option per TrainConfig field with a flag
         p.add_argument(flag, dest=name, default=None, help=text, **kwargs)
     p.add_argument("--downscale", type=int, default=1, help="shrink the images by this factor (default 1)")
-    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.npz")
+    from .scenes import add_images_arg
+    add_images_arg(p)
+    p.add_argument("--resume", action="store_true",
+                   help="continue from OUT/checkpoint.npz (refused when SCENE, --downscale, --images or the data "
+                        "differ from the run's)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="allow replacing what OUT holds: a finished run (mesh.ply, metrics.json) or, without "
+                        "--resume, a checkpoint")
     from ..train.ablations import ABLATIONS
     p.add_argument("--ablation", choices=list(ABLATIONS), default=None,
                    help="one of the paper's ablations (Tables 2-3): " + "; ".join(
@@ -71,7 +83,6 @@ def load_config_file(path):
     """The keys of a ``--config`` file (JSON, or TOML by its ``.toml`` suffix), checked
     against :class:`~tsplus_wgpu.train.config.TrainConfig`'s fields (``adapter``, written to
     config.json, is ignored)."""
-    from dataclasses import fields
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"--config {path}: no such file")
@@ -86,12 +97,8 @@ def load_config_file(path):
                          f"({exc})") from None
     if not isinstance(data, dict):
         raise ValueError(f"--config {path}: expected a table of settings")
-    known = {f.name for f in fields(TrainConfig)}
-    unknown = sorted(set(data) - known - {"adapter"})
-    if unknown:
-        raise ValueError(f"--config {path}: unknown keys {unknown}; known: {sorted(known)}")
     data.pop("adapter", None)
-    return data
+    return check_settings(data, source=f"--config {path}")     # unknown keys, types and ranges: one line
 
 
 def resolve_settings(args):
@@ -107,6 +114,7 @@ def resolve_settings(args):
         value = getattr(args, name)
         if value is not None:
             settings[name] = _FROM_FLAG.get(name, lambda v: v)(value)
+    settings = check_settings(settings, source="flags")           # the flags' types and ranges, before any work
     settings["indoor"] = bool(settings.get("indoor", False))
     if getattr(args, "ablation", None):
         from ..train.ablations import ablation_overrides
@@ -125,38 +133,97 @@ def config_for_scene(args, settings, scene):
     the invocation noted in ``extra``."""
     settings = dict(settings)
     settings["background"] = tuple(float(x) for x in settings.get("background", scene.background))
-    settings["extra"] = {**settings.get("extra", {}), "scene": str(args.scene), "downscale": args.downscale,
+    from ..train.checkpoint import data_fingerprint, scene_id
+    settings["extra"] = {**settings.get("extra", {}), "scene": scene_id(args.scene), "downscale": args.downscale,
                          **({"ablation": args.ablation} if getattr(args, "ablation", None) else {}),
-                         **({"config_file": str(args.config)} if args.config else {})}
+                         **({"config_file": str(args.config)} if args.config else {}),
+                         "images": getattr(args, "images", None),
+                         "scene_warnings": [str(w) for w in getattr(scene, "warnings", None) or ()],
+                         "data": data_fingerprint(scene, args.scene, args.downscale, getattr(args, "images", None))}
     return TrainConfig(**settings)
 
 
-def _output_folder(args):
-    out = Path(args.out)
+def _check_writable(out: Path):
+    """``--out`` can be created and written (probed with a temp folder in its nearest existing
+    ancestor, removed at once): one line otherwise, before any heavy work."""
     if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out}: exists and is not a folder")
+        raise UserError(f"--out {out}: exists and is not a folder; choose another --out")
+    anc = out.absolute()
+    while not anc.exists() and anc != anc.parent:
+        anc = anc.parent
+    if not anc.is_dir():
+        raise UserError(f"--out {out}: {anc} is a file, not a folder; choose another --out")
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".tsplus-probe-", dir=anc))
+    except OSError as exc:
+        cause = describe(exc)[0] if exc.errno != errno.ENOENT else "cannot create folders there"
+        raise UserError(f"--out {out}: cannot write in {anc} ({cause}); choose another --out") from None
+
+
+def _finished(out: Path):
+    return (out / "mesh.ply").is_file() and (out / "metrics.json").is_file()
+
+
+def _output_folder(args):
+    """``(out, checkpoint path, (arrays, meta) of the checkpoint to resume or None)``, every
+    check on ``--out`` and ``--resume`` that needs no scene done."""
+    if not str(args.out).strip():
+        raise UserError("--out: empty; give the output folder (e.g. --out runs/NAME)")
+    out = Path(args.out)
+    _check_writable(out)
     ckpt = out / "checkpoint.npz"
-    if not args.resume and ckpt.exists():
-        raise ValueError(f"--out {out}: holds a checkpoint already; add --resume to continue it or choose another "
-                         f"folder")
-    return out, ckpt
+    if _finished(out) and not args.overwrite:
+        raise UserError(f"--out {out}: holds a finished run (mesh.ply, metrics.json); add --overwrite to replace it"
+                        f"{' (--resume: re-export it)' if args.resume else ''} or choose another --out")
+    if not args.resume:
+        if ckpt.exists() and not args.overwrite:
+            raise UserError(f"--out {out}: holds a checkpoint already; add --resume to continue it, --overwrite to "
+                            f"start over, or choose another --out")
+        return out, ckpt, None
+    from ..train.checkpoint import check_fingerprint, read_checkpoint, scene_id
+    loaded = read_checkpoint(ckpt)
+    saved = (loaded[1]["config"].get("extra") or {}).get("data")
+    current = dict(scene=scene_id(args.scene), downscale=args.downscale, images=getattr(args, "images", None))
+    warning = check_fingerprint(ckpt, saved, current, keys=list(current))
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
+    return out, ckpt, loaded
 
 
-def _start(args, cfg, scene, out, ckpt, t0):
-    """The trainer (new or resumed) with config.json written and the start printed."""
+def _prepare(out: Path, fresh):
+    """Create ``out``, remove the temp files a killed run left there and the old
+    ``metrics.json`` (the folder holds no finished run until the end); starting afresh (in a
+    folder with results only with ``--overwrite``), the old run's other results too."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        remove_orphans(out)
+        old = [out / "metrics.json"]
+        if fresh:
+            old += [out / n for n in ("log.jsonl", "checkpoint.npz", "mesh.ply")] + sorted(out.glob("test_*.png"))
+        for path in old:
+            path.unlink(missing_ok=True)
+    except OSError as exc:
+        raise write_error(out, exc) from None
+
+
+def _start(args, cfg, scene, out, ckpt, t0, loaded=None):
+    """The trainer (new or resumed from ``loaded``, the checkpoint's ``(arrays, meta)``) with
+    config.json written and the start printed."""
     from ..render.renderer import Renderer
     from ..train.trainer import Trainer
+    if loaded is not None:       # the whole data fingerprint, now that the scene is loaded
+        from ..train.checkpoint import check_fingerprint
+        check_fingerprint(ckpt, (loaded[1]["config"].get("extra") or {}).get("data"), cfg.extra["data"])
     normal_maps = None
     if cfg.normals:
         from ..data.normals import load_normal_maps
         normal_maps = load_normal_maps(scene, cfg.normals)
     renderer = Renderer(args.adapter)
-    out.mkdir(parents=True, exist_ok=True)
-    if args.resume:
-        trainer = Trainer.resume(ckpt, scene, cfg, renderer=renderer, normals=normal_maps)
+    if loaded is not None:
+        trainer = Trainer.resume(ckpt, scene, cfg, renderer=renderer, normals=normal_maps, loaded=loaded)
     else:
         trainer = Trainer(scene, cfg, renderer=renderer, normals=normal_maps)
-        (out / "log.jsonl").unlink(missing_ok=True)
+    _prepare(out, fresh=loaded is None)
     write_json(out / "config.json", dict(asdict(cfg), adapter=renderer.adapter_name))
     print(f"adapter: {renderer.adapter_name}")
     print(f"scene: {args.scene} ({len(scene.train_indices)} training / {len(scene.test_indices)} held-out views, "
@@ -172,23 +239,26 @@ def _start(args, cfg, scene, out, ckpt, t0):
     return trainer
 
 
-def _finish(trainer, scene, out, psnr0):
-    """Evaluate, export the mesh, write metrics.json and the test renders, print the result."""
+def _finish(trainer, scene, out, ckpt, psnr0):
+    """Export the mesh (first: nothing optional before it), then the checkpoint, the
+    evaluation, metrics.json (which marks the run finished) and the test renders."""
     from ..train.schedules import SIGMA_FINAL
-    soft_psnr, soft_ssim, _ = trainer.evaluate()
     pos, tri, col = trainer.final_mesh()
+    _atomic_ply(out / "mesh.ply", pos, tri, col)
+    trainer.save_checkpoint(ckpt)
+    soft_psnr, soft_ssim, _ = trainer.evaluate()
     mesh_model = trainer.mesh_model(pos, tri, col)
     views = list(scene.test_indices or trainer.train_views)
     psnr_m, ssim_m, imgs = trainer.evaluate(mesh_model, sigma=SIGMA_FINAL, views=views)
-    _atomic_ply(out / "mesh.ply", pos, tri, col)
-    for v, img in zip(views[:4], imgs[:4]):
-        write_image(out / f"test_{v:03d}.png", np.concatenate([scene.images[v], img], axis=1))
     metrics = dict(iterations=trainer.iteration, held_out_views=views, held_out_are_training_views=not scene.test_indices,
                    mesh_psnr=psnr_m, mesh_ssim=ssim_m, model_psnr=soft_psnr, model_ssim=soft_ssim,
                    initial_model_psnr=psnr0, mesh_vertices=int(len(pos)), mesh_triangles=int(len(tri)),
                    model_vertices=trainer.n, model_triangles=trainer.m, train_seconds=trainer.elapsed,
-                   iterations_per_s=trainer.iteration / max(trainer.elapsed, 1e-9))
+                   iterations_per_s=trainer.iteration / max(trainer.elapsed, 1e-9),
+                   scene_warnings=[str(w) for w in getattr(scene, "warnings", None) or ()])
     write_json(out / "metrics.json", metrics)
+    for v, img in zip(views[:4], imgs[:4]):
+        write_image(out / f"test_{v:03d}.png", np.concatenate([scene.images[v], img], axis=1))
     print(f"held-out PSNR {psnr_m:.2f} dB / SSIM {ssim_m:.3f} (opaque mesh: {len(pos)} vertices, {len(tri)} "
           f"triangles); trained model before the final cleanup {soft_psnr:.2f} dB"
           + (f" (initial {psnr0:.2f} dB)" if psnr0 is not None else ""))
@@ -196,24 +266,28 @@ def _finish(trainer, scene, out, psnr0):
 
 
 def run(args):
-    from ..data import load_scene_arg
+    from ..train.loop import Interrupted
+    from .scenes import load_cli_scene
     settings = resolve_settings(args)
-    out, ckpt = _output_folder(args)
+    out, ckpt, loaded = _output_folder(args)
     t0 = time.perf_counter()
-    scene = load_scene_arg(args.scene, args.downscale, args.seed)
+    scene = load_cli_scene(args.scene, args.downscale, args.seed, images=args.images)   # prints its warnings
     cfg = config_for_scene(args, settings, scene)
-    trainer = _start(args, cfg, scene, out, ckpt, t0)
+    trainer = _start(args, cfg, scene, out, ckpt, t0, loaded)
+    del loaded
     from .view import attach_live_viewer
     viewer = attach_live_viewer(trainer, args, scene)   # --view: the live window, drawn between steps
     psnr0 = trainer.evaluate()[0] if trainer.iteration == 0 else None
     try:
-        trainer.train(out_dir=out, progress=not args.no_progress)
-    except KeyboardInterrupt:
-        print(f"tsplus: interrupted at iteration {trainer.iteration}; checkpoint saved to {ckpt} "
-              f"(continue with --resume)")
-        return 130
+        trainer.train(out_dir=out, progress=not args.no_progress, checkpoint_at_end=False)
+    except Interrupted as exc:
+        import signal
+        signum = exc.signum or signal.SIGINT
+        print(f"tsplus: {exc.signal_name if exc.signum else 'stopped'} at iteration {trainer.iteration}; checkpoint "
+              f"saved to {ckpt}; continue with --resume", file=sys.stderr)
+        return 128 + int(signum)
     finally:
         if viewer is not None:
             viewer.close()
-    _finish(trainer, scene, out, psnr0)
+    _finish(trainer, scene, out, ckpt, psnr0)
     return 0

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import UserError
+
 
 def load_viewer():
     """The viewer package: ``tsplus_wgpu.viewer`` when installed from a wheel, else the
@@ -66,6 +68,8 @@ def add_parser(sub):
                         "gravity, ground contact and collision with walls (trimesh queries, embree when embreex is "
                         "installed). Keys: " + WALK_KEYS + "; X, H, K, Esc as usual. With --screenshot: the walker's "
                         "view after standing for one second")
+    from .scenes import add_images_arg
+    add_images_arg(p, help="image folder inside the scene whose cameras are used (default: the run's, else images)")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
     return p
 
@@ -110,15 +114,22 @@ def attach_live_viewer(trainer, args, scene=None):
     return viewer
 
 
-def _scene_cameras(scene_arg, downscale=1):
+def _scene_cameras(args, info):
+    """The cameras of ``--scene`` (its errors are the user's: one line, exit 2) or of the scene
+    the run records (a warning and the free camera when it cannot be loaded)."""
+    from .scenes import load_cli_scene
+    scene_arg = args.scene or info.get("scene")
     if not scene_arg:
         return None
-    from ..data import load_scene_arg
+    images = args.images or (None if args.scene else info.get("images"))
+    downscale = info.get("downscale") or 1
+    if args.scene or args.images:
+        return list(load_cli_scene(scene_arg, downscale, 0, images).cameras)
     try:
-        return list(load_scene_arg(scene_arg, downscale or 1, 0).cameras)
+        return list(load_cli_scene(scene_arg, downscale, 0, images).cameras)
     except Exception as exc:
-        print(f"tsplus view: cannot load the scene {scene_arg} for its cameras ({exc}); free camera only",
-              file=sys.stderr)
+        print(f"warning: cannot load the run's scene {scene_arg} for its cameras ({exc}); free camera only (give "
+              f"--scene)", file=sys.stderr)
         return None
 
 
@@ -127,8 +138,13 @@ def run(args):
     from ..apps.runs import load_run
     from ..train.schedules import SIGMA_FINAL
     v = load_viewer()
+    why = None if args.screenshot else v.display_problem()
+    if why is not None:              # before any loading: a window is asked for and none can open
+        raise UserError(f"view: cannot open a window: {why}; {v.NO_DISPLAY_HINT}")
     model, info = load_run(args.path)
-    cameras = _scene_cameras(args.scene or info.get("scene"), info.get("downscale", 1))
+    if model.num_triangles == 0:
+        raise UserError(f"{args.path}: the mesh has no triangles; nothing to view (train longer, or check the file)")
+    cameras = _scene_cameras(args, info)
     if args.camera is not None:
         if not cameras:
             raise ValueError("--camera: no scene cameras (give --scene, or a run folder that records its scene)")
@@ -151,24 +167,18 @@ def run(args):
             for _ in range(60):            # stand for a second: the walker settles on the ground
                 viewer.walking.walker.step(1 / 60)
         img = viewer.frame()
-        import imageio.v3 as iio
+        from ..io.atomic import write_image
         out = Path(args.screenshot)
         out.parent.mkdir(parents=True, exist_ok=True)
-        iio.imwrite(out, img)
+        write_image(out, img)          # atomic: a failed write leaves nothing at the target
         print(f"wrote {out} ({img.shape[1]}x{img.shape[0]}, {model.num_triangles} triangles, "
               f"{'splat' if args.splat else 'wireframe' if args.wireframe else 'mesh'}, {renderer.adapter_name})")
         return 0
-    why = v.display_problem()
-    viewer = None
-    if why is None:
-        try:
-            viewer = v.Viewer(source, cameras, size=size, background=bg, max_fps=args.max_fps,
-                              camera_index=args.camera, title=f"tsplus view {args.path}", walk=args.walk)
-        except v.NoDisplayError as exc:
-            why = str(exc)
-    if viewer is None:
-        print(f"tsplus view: {why}; {v.NO_DISPLAY_HINT}", file=sys.stderr)
-        return 2
+    try:
+        viewer = v.Viewer(source, cameras, size=size, background=bg, max_fps=args.max_fps,
+                          camera_index=args.camera, title=f"tsplus view {args.path}", walk=args.walk)
+    except v.NoDisplayError as exc:     # glfw missing, or it cannot reach the display
+        raise UserError(f"view: cannot open a window: {exc}; {v.NO_DISPLAY_HINT}") from None
     viewer.mode = "splat" if args.splat else "mesh"
     viewer.wire = args.wireframe
     print(f"tsplus view: {model.num_vertices} vertices / {model.num_triangles} triangles ({info.get('from')}); "

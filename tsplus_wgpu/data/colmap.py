@@ -7,18 +7,22 @@ as they are, any other model is undistorted to a pinhole camera
 
 from __future__ import annotations
 
-import struct
+import re
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from ..types import Camera
+from .colmap_check import MODEL_FILES, check_model
 from .errors import SceneError
+from .plausible import MAX_COORD, MAX_DISTORTION, check_focal
 from .scene import FrameSpec, check_pose
 from .undistort import ColmapUndistorter
 
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
-MODEL_FILES = ("cameras", "images", "points3D")
+__all__ = ["MODEL_FILES", "PINHOLE_MODELS", "colmap_frames", "find_model_dir", "read_model"]
 
 
 def _pycolmap():
@@ -38,78 +42,36 @@ def find_model_dir(root: Path):
     return None
 
 
-def _known_models():
+def read_model(model_dir: Path, warnings=None):
+    """Read a COLMAP model with pycolmap after checking its files (:mod:`.colmap_check`),
+    turning every failure into a one-line SceneError; points with non-finite coordinates in
+    ``points3D.txt`` are left out with a warning."""
     pycolmap = _pycolmap()
-    return {k for k in pycolmap.CameraModelId.__members__ if k != "INVALID"}, \
-        {int(v): k for k, v in pycolmap.CameraModelId.__members__.items() if k != "INVALID"}
-
-
-def _precheck(model_dir: Path):
-    """Raise a clear SceneError for missing files and unknown camera models before pycolmap sees them."""
-    ext = ".bin" if (model_dir / "cameras.bin").is_file() else ".txt"
-    for stem in MODEL_FILES:
-        f = model_dir / f"{stem}{ext}"
-        if not f.is_file():
-            raise SceneError(f"{f}: missing from the COLMAP model; export the complete model "
-                             "(cameras, images, points3D) again")
-    names, ids = _known_models()
-    if ext == ".txt":
-        _precheck_images_txt(model_dir / "images.txt")
-    cam_file = model_dir / f"cameras{ext}"
-    if ext == ".txt":
-        for ln, line in enumerate(cam_file.read_text(errors="replace").splitlines(), 1):
-            parts = line.split()
-            if not parts or parts[0].startswith("#"):
-                continue
-            if len(parts) < 4:
-                raise SceneError(f"{cam_file}:{ln}: malformed camera line; expected "
-                                 "'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...'")
-            if parts[1] not in names:
-                raise SceneError(f"{cam_file}:{ln}: unknown camera model {parts[1]!r}; use one of "
-                                 f"{', '.join(sorted(names))}")
-    else:
-        data = cam_file.read_bytes()
-        if len(data) >= 8 + 24:
-            n = struct.unpack_from("<Q", data, 0)[0]
-            if n:
-                _, model_id = struct.unpack_from("<ii", data, 8)
-                if model_id not in ids:
-                    raise SceneError(f"{cam_file}: unknown camera model id {model_id}; "
-                                     "re-export the model with a current COLMAP")
-
-
-def _precheck_images_txt(img_file: Path):
-    """COLMAP cannot parse 'nan'/'inf' in images.txt: report the image and line instead."""
-    lines = [ln for ln in img_file.read_text(errors="replace").splitlines() if not ln.startswith("#")]
-    nums = img_file.read_text(errors="replace").splitlines()
-    k = 0
-    physical = [i for i, ln in enumerate(nums, 1) if not ln.startswith("#")]
-    while k < len(lines):
-        parts = lines[k].split()
-        if parts:
-            name = parts[9] if len(parts) > 9 else "?"
-            try:
-                vals = [float(v) for v in parts[1:8]]
-            except ValueError:
-                raise SceneError(f"{img_file}:{physical[k]} (image {name!r}): malformed pose; expected "
-                                 "'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'") from None
-            if len(vals) < 7 or not all(np.isfinite(vals)):
-                raise SceneError(f"{img_file}:{physical[k]} (image {name!r}): pose contains non-finite values "
-                                 "(NaN or Inf); fix or remove this image from the model")
-            k += 2  # skip the POINTS2D line
-        else:
-            k += 1
-
-
-def read_model(model_dir: Path):
-    """Read a COLMAP model with pycolmap, turning its failures into SceneError."""
-    pycolmap = _pycolmap()
-    _precheck(model_dir)
+    model_dir = Path(model_dir)
+    _, bad_lines = check_model(model_dir)
+    src, tmp = model_dir, None
+    if bad_lines:
+        tmp = Path(tempfile.mkdtemp(prefix="tsplus-colmap-"))
+        for f in model_dir.iterdir():
+            if f.is_file() and f.name != "points3D.txt":
+                shutil.copyfile(f, tmp / f.name)
+        drop = set(bad_lines)
+        lines = (model_dir / "points3D.txt").read_text().splitlines()
+        (tmp / "points3D.txt").write_text("\n".join(ln for k, ln in enumerate(lines, 1) if k not in drop) + "\n")
+        if warnings is not None:
+            warnings.append(f"dropped {len(drop)} non-finite point(s) from {model_dir / 'points3D.txt'} (line "
+                            f"{', '.join(map(str, bad_lines[:5]))}{' ...' if len(bad_lines) > 5 else ''})")
+        src = tmp
     try:
-        rec = pycolmap.Reconstruction(str(model_dir))
+        rec = pycolmap.Reconstruction(str(src))
     except Exception as exc:  # pycolmap raises ValueError/RuntimeError with C++ messages
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise SceneError(f"{model_dir}: cannot read the COLMAP model ({msg}); re-export it from COLMAP") from None
+        msg = re.sub(r"^\[[^\]]*\]\s*", "", msg).replace("Check failed: ", "")
+        raise SceneError(f"{model_dir}: pycolmap cannot read this COLMAP model (it rejects: {msg}); "
+                         "export the model again from COLMAP") from None
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
     return rec
 
 
@@ -119,7 +81,7 @@ def colmap_frames(root: Path, model_dir: Path, image_dir: Path, warnings: list):
     Returns:
         ``(frames, points [P,3] or None, colors [P,3] or None, models Counter, rec)``.
     """
-    rec = read_model(model_dir)
+    rec = read_model(model_dir, warnings)
     ext = ".bin" if (model_dir / "images.bin").is_file() else ".txt"
     img_file = model_dir / f"images{ext}"
     reg = [im for im in rec.images.values() if im.has_pose]
@@ -142,6 +104,7 @@ def colmap_frames(root: Path, model_dir: Path, image_dir: Path, warnings: list):
         if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
             raise SceneError(f"{model_dir / ('cameras' + ext)} (camera {im.camera_id}): invalid intrinsics "
                              f"{list(cam.params)}; fix the camera")
+        check_focal(K[0, 0], cam.width, f"{model_dir / ('cameras' + ext)} (camera {im.camera_id})", "focal length")
         try:
             pin = Camera(cam.width, cam.height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], m)
         except ValueError as exc:
@@ -149,6 +112,8 @@ def colmap_frames(root: Path, model_dir: Path, image_dir: Path, warnings: list):
         und = None
         if model not in PINHOLE_MODELS:
             if im.camera_id not in undistorters:
+                _check_distortion(pycolmap_cam=cam, model=model, cam_id=im.camera_id,
+                                  where=str(model_dir / f"cameras{ext}"))
                 undistorters[im.camera_id] = ColmapUndistorter(cam, source=str(model_dir / f"cameras{ext}"))
             und = undistorters[im.camera_id]
         frames.append(FrameSpec(name=im.name, path=image_dir / im.name, camera=pin, group=im.camera_id,
@@ -165,4 +130,35 @@ def colmap_frames(root: Path, model_dir: Path, image_dir: Path, warnings: list):
     if not np.all(ok):
         warnings.append(f"dropped {int((~ok).sum())} non-finite point(s) from {model_dir / ('points3D' + ext)}")
         xyz, rgb = xyz[ok], rgb[ok]
+    far = np.any(np.abs(xyz) > MAX_COORD, axis=1)
+    if np.any(far):
+        warnings.append(f"dropped {int(far.sum())} point(s) beyond {MAX_COORD:g} units from "
+                        f"{model_dir / ('points3D' + ext)}")
+        xyz, rgb = xyz[~far], rgb[~far]
+    if len(xyz) == 0:
+        warnings.append(f"{model_dir / ('points3D' + ext)} has no usable points: initial points are made from the "
+                        "known poses instead")
+        return frames, None, None, models, rec
     return frames, xyz, rgb, models, rec
+
+
+def _check_distortion(pycolmap_cam, model, cam_id, where):
+    """The distortion parameters of a non-pinhole camera are plausible, and undistorting keeps most of the image."""
+    import pycolmap  # noqa: PLC0415
+    params = list(pycolmap_cam.params)
+    for i in pycolmap_cam.extra_params_idxs():
+        if not abs(params[i]) <= MAX_DISTORTION:
+            raise SceneError(f"{where}: camera {cam_id} ({model}) has distortion parameter {params[i]:g} (parameter "
+                             f"{i + 1} of {len(params)}), implausible for a real lens (|k| <= {MAX_DISTORTION:g}); "
+                             "fix the calibration")
+    try:
+        ucam = pycolmap.undistort_camera(pycolmap.UndistortCameraOptions(), pycolmap_cam)
+    except Exception as exc:
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise SceneError(f"{where}: camera {cam_id} ({model}) cannot be undistorted to a pinhole camera ({msg}); "
+                         "use a perspective camera model") from None
+    w, h = pycolmap_cam.width, pycolmap_cam.height
+    if ucam.width * 4 < w or ucam.height * 4 < h:
+        extra = [float(params[i]) for i in pycolmap_cam.extra_params_idxs()]
+        raise SceneError(f"{where}: camera {cam_id} ({model}): its distortion parameters {extra} "
+                         f"leave a {ucam.width}x{ucam.height} undistorted image of {w}x{h}; fix the calibration")

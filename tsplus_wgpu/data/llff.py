@@ -14,6 +14,7 @@ import numpy as np
 from ..types import Camera
 from .errors import SceneError
 from .images import list_images
+from .plausible import check_focal, check_size
 from .scene import FrameSpec, check_pose
 
 
@@ -40,6 +41,9 @@ def llff_frames(root: Path, image_dir: Path, warnings: list):
         if not np.all(np.isfinite(m)):
             raise SceneError(f"{where}: pose contains non-finite values (NaN or Inf); fix or remove this image")
         h, w, focal = m[:, 4]
+        check_size(h, where, "height (hwf column)")
+        check_size(w, where, "width (hwf column)")
+        check_focal(focal, w, where, "focal (hwf column)")
         # LLFF columns (down, right, back) -> OpenCV (right, down, forward)
         c2w = np.eye(4)
         c2w[:3, 0] = m[:, 1]

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import hashlib
+import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from .errors import SceneError
 from .images import list_images
+from .plausible import check_train_size
 from .scene import Scene, load_frames, make_split, select_frames
 
 FORMATS = ("colmap", "transforms", "nerf-synthetic", "llff", "photos", "procedural")
@@ -34,18 +38,49 @@ def _parse_background(background, default):
     return tuple(float(v) for v in arr)
 
 
+def _image_folders(root: Path) -> dict:
+    """``{N: folder}`` of the scene's image folders that hold images: 1 for ``images/``, N for ``images_N/``."""
+    out = {}
+    if list_images(root / "images"):
+        out[1] = root / "images"
+    for d in sorted(root.iterdir()) if root.is_dir() else ():
+        m = re.fullmatch(r"images_(\d+)", d.name)
+        if m and int(m.group(1)) >= 1 and d.is_dir() and list_images(d):
+            out.setdefault(int(m.group(1)), d)
+    return out
+
+
 def _image_dir(root: Path, images, downscale):
-    """The image folder and the downscale factor still to apply (``images_N`` folders absorb N)."""
+    """``(folder, downscale still to apply, why this folder)``: ``--images`` when given; else
+    ``images_N`` when ``downscale`` is N and it exists; else ``images/``; else (only ``images_N/``
+    folders) the one with the largest N not above ``downscale``, or the largest images."""
+    downscale = float(downscale)
     if images is not None:
-        d = root / images
+        d = Path(images) if Path(images).is_absolute() else root / images
         if not d.is_dir():
             raise SceneError(f"{d}: image folder not found; pass an existing folder name with --images")
-        return d, float(downscale)
-    if float(downscale) > 1 and float(downscale).is_integer():
-        cand = root / f"images_{int(downscale)}"
-        if cand.is_dir() and list_images(cand):
-            return cand, 1.0
-    return root / "images", float(downscale)
+        return d, downscale, "as --images asks"
+    folders = _image_folders(root)
+    if downscale > 1 and downscale.is_integer() and int(downscale) in folders:
+        n = int(downscale)
+        return folders[n], 1.0, f"holds the images at 1/{n} size, as --downscale {n} asks"
+    if 1 in folders or not folders:
+        return root / "images", downscale, ""
+    gone = "images/ is missing" + (" its images" if (root / "images").is_dir() else "")
+    fit = [n for n in folders if n <= downscale]
+    if fit:
+        n = max(fit)
+        rest = downscale / n
+        return folders[n], rest, (f"{gone}; images_{n} holds the images at 1/{n} size"
+                                  + (f", shrunk {rest:g}x more for --downscale {downscale:g}" if rest != 1 else ""))
+    n = min(folders)
+    return folders[n], 1.0, (f"{gone}; images_{n} is the largest available (1/{n} size)"
+                             + (f", smaller than --downscale {downscale:g} asks" if downscale != 1 else ""))
+
+
+def _folder_factor(image_dir: Path) -> float:
+    m = re.fullmatch(r"images_(\d+)", Path(image_dir).name)
+    return float(m.group(1)) if m else 1.0
 
 
 def detect_format(path) -> str:
@@ -79,7 +114,7 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
         path: scene folder (or its ``transforms.json`` / ``poses_bounds.npy``); ``None`` or
             ``"procedural"`` (optionally ``"procedural:tiny|small|demo"``) for the built-in scene.
         images: image folder name inside the scene (default ``images``, or ``images_N`` when
-            ``downscale`` is N and that folder exists).
+            ``downscale`` is N and that folder exists, or when ``images/`` is missing: see the summary).
         downscale: shrink images (and intrinsics) by this factor (>= 1).
         background: RGB in [0,1] (or ``"white"``/``"black"``) that alpha is composited on;
             default white for NeRF-synthetic (the evaluation protocol), black otherwise.
@@ -89,8 +124,8 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
         points: ``"auto"`` (SfM points, else triangulation from known poses, else frusta),
             ``"triangulate"``, ``"frusta"`` or ``"none"``.
         on_bad_image: ``"skip"`` (warn and skip missing/unreadable images) or ``"error"``.
-        cache_dir: where SfM / triangulation results are cached (default beside the photos,
-            else ``$TSPLUS_CACHE`` or the user cache).
+        cache_dir: where SfM / triangulation results are cached (default ``$TSPLUS_CACHE``, else
+            ``$XDG_CACHE_HOME/tsplus_wgpu``, default ``~/.cache/tsplus_wgpu``; never the scene folder).
         progress: show progress bars for long steps (SfM, triangulation, many images).
         max_points: randomly subsample the initial points to at most this many.
         seed: seed of the random choices (frusta points, subsampling).
@@ -112,12 +147,18 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
 
     root = _scene_root(path)
     warnings: list = []
-    fmt, frame_specs, rest, pts, cols, bounds = _read_format(root, images, downscale, cache_dir, progress, warnings)
+    fmt, frame_specs, rest, pts, cols, bounds, (image_dir, why) = _read_format(root, images, downscale, cache_dir,
+                                                                              progress, warnings)
     bg = _parse_background(background, (1.0, 1.0, 1.0) if fmt == "nerf-synthetic" else (0.0, 0.0, 0.0))
     is_test = [f.is_test for f in frame_specs]
     train_all, test_all, rule = make_split(len(frame_specs), split, is_test if fmt == "nerf-synthetic" else None)
     sel = select_frames(frame_specs, frames)
     chosen = [frame_specs[i] for i in sel]
+    total = rest * (_folder_factor(image_dir) if image_dir is not None and images is None else 1.0)
+    if chosen and downscale > 1:   # what the user asked, before reading any image
+        c0 = chosen[0].camera
+        check_train_size(max(1, round(c0.width / downscale)), max(1, round(c0.height / downscale)),
+                         (c0.width, c0.height), downscale, chosen[0].source or str(chosen[0].path))
     cameras, imgs, kept, skipped = load_frames(chosen, rest, bg, on_bad_image, warnings, progress=progress)
     orig = [sel[k] for k in kept]
     train_set, test_set = set(train_all), set(test_all)
@@ -133,14 +174,16 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
         pts = cols = None
         source = "none"
     elif pts is None or points in ("triangulate", "frusta"):
-        pts, cols, source = _initial_points(points, cameras, imgs, names, train_idx, bounds, root, cache_dir,
+        full = _full_size_specs(fmt, root, images, [chosen[k] for k in kept], image_dir)
+        pts, cols, source = _initial_points(points, cameras, imgs, full, bg, train_idx, bounds, cache_dir,
                                             progress, seed, warnings)
     if pts is not None and max_points is not None and len(pts) > int(max_points):
         keep = np.sort(np.random.default_rng(seed).choice(len(pts), int(max_points), replace=False))
         pts, cols = pts[keep], cols[keep]
     return Scene(format=fmt, cameras=cameras, images=imgs, image_names=names, points=pts, point_colors=cols,
                  points_source=source, train_indices=train_idx, test_indices=test_idx, warnings=warnings,
-                 root=str(root), background=bg, skipped=skipped, camera_models=models, split_rule=rule)
+                 root=str(root), background=bg, skipped=skipped, camera_models=models, split_rule=rule,
+                 image_dir=str(image_dir) if image_dir is not None else None, image_dir_reason=why, downscale=total)
 
 
 def _check_options(points, on_bad_image, downscale):
@@ -175,18 +218,19 @@ def _scene_root(path) -> Path:
 
 def _read_format(root, images, downscale, cache_dir, progress, warnings):
     """Detect the format of ``root`` and read its frames: ``(format, frame specs, remaining
-    downscale, SfM points or None, their colours, LLFF depth bounds or None)``; a folder of
-    photos runs SfM (cached) first."""
+    downscale, SfM points or None, their colours, LLFF depth bounds or None, (image folder or
+    None, why that folder))``; a folder of photos runs SfM (cached) first."""
     from .colmap import colmap_frames, find_model_dir  # noqa: PLC0415
     from .llff import llff_frames  # noqa: PLC0415
     from .sfm import photo_names, run_photos_sfm  # noqa: PLC0415
     from .transforms import find_transforms, transforms_frames  # noqa: PLC0415
-    pts = cols = bounds = None
+    pts = cols = bounds = image_dir = None
+    why = ""
     model_dir = find_model_dir(root)
     t_files, t_variant = find_transforms(root)
     if model_dir is not None:
         fmt = "colmap"
-        image_dir, rest = _image_dir(root, images, downscale)
+        image_dir, rest, why = _image_dir(root, images, downscale)
         if not image_dir.is_dir():
             raise SceneError(f"{image_dir}: image folder of the COLMAP model not found; put the images there "
                              "or pass --images FOLDER")
@@ -197,7 +241,7 @@ def _read_format(root, images, downscale, cache_dir, progress, warnings):
         frame_specs, _ = transforms_frames(root, t_files, t_variant, warnings)
     elif (root / "poses_bounds.npy").is_file():
         fmt = "llff"
-        image_dir, rest = _image_dir(root, images, downscale)
+        image_dir, rest, why = _image_dir(root, images, downscale)
         frame_specs, bounds = llff_frames(root, image_dir, warnings)
     else:
         photo_dir = root / images if images is not None else (root / "images" if list_images(root / "images") else root)
@@ -209,26 +253,70 @@ def _read_format(root, images, downscale, cache_dir, progress, warnings):
             raise SceneError(f"{root}: no images and no camera model found (expected COLMAP sparse/, "
                              "transforms.json, poses_bounds.npy or photos); point to a scene folder")
         fmt = "photos"
+        image_dir = photo_dir
         model_dir = run_photos_sfm(photo_dir, names, cache=cache_dir, progress=progress, warnings=warnings)
         rest = downscale
         frame_specs, pts, cols, _, _ = colmap_frames(root, model_dir, photo_dir, warnings)
-    return fmt, frame_specs, rest, pts, cols, bounds
+    if why.startswith("images/ is missing"):
+        warnings.append(f"{image_dir}: {why}")
+    return fmt, frame_specs, rest, pts, cols, bounds, (image_dir, why)
 
 
-def _initial_points(points, cameras, imgs, names, train_idx, bounds, root, cache_dir, progress, seed, warnings):
+def _full_size_specs(fmt, root, images, specs, image_dir):
+    """The frames ``specs`` read from the scene's full-size image folder (``images/``, else the
+    largest ``images_N/``) instead of the one the downscale picked: initial points do not depend
+    on the training downscale."""
+    if fmt not in ("colmap", "llff") or image_dir is None:
+        return specs
+    full_dir, _, _ = _image_dir(root, images, 1.0)
+    if full_dir == image_dir:
+        return specs
+    return [replace(f, path=full_dir / f.name) if (full_dir / f.name).is_file() else f for f in specs]
+
+
+def _triangulation_key(specs, background) -> str:
+    """Cache key of a triangulation: the image files (names, sizes, modification times), their
+    cameras and lens distortion, the background, and the loader's version of the recipe."""
+    h = hashlib.sha1(b"tsplus-triangulation-v2|")
+    for f in specs:
+        try:
+            st = Path(f.path).stat()
+            h.update(f"{f.name}|{Path(f.path).name}|{st.st_size}|{st.st_mtime_ns}|".encode())
+        except OSError:
+            h.update(f"{f.name}|missing|".encode())
+        c = f.camera
+        h.update(np.round(np.array([c.width, c.height, c.fx, c.fy, c.cx, c.cy], np.float64), 6).tobytes())
+        h.update(np.round(c.world_to_camera, 9).tobytes())
+        und = f.undistort
+        if und is not None:
+            coeffs = getattr(und, "coeffs", None)
+            cam = getattr(und, "camera", None)
+            h.update(repr((None if coeffs is None else np.asarray(coeffs).tolist(),
+                           None if cam is None else [cam.model_name, list(map(float, cam.params))])).encode())
+    h.update(repr(tuple(background)).encode())
+    return h.hexdigest()
+
+
+def _initial_points(points, cameras, imgs, specs, background, train_idx, bounds, cache_dir, progress, seed,
+                    warnings):
     """Initial points without SfM ones (or when asked): triangulated with pycolmap from the
-    posed training images, else made from the camera frusta. Returns ``(points, colours, source)``."""
-    from .sfm import cache_root, frusta_points, triangulate_known_poses  # noqa: PLC0415
+    posed training images at their full size (cached, so every downscale reuses them), else
+    made from the camera frusta. ``specs`` are the loaded frames at full size.
+    Returns ``(points, colours, source)``."""
+    from .scene import full_size_frame  # noqa: PLC0415
+    from .sfm import cache_root, frusta_points, triangulate_frames  # noqa: PLC0415
     use = train_idx if len(train_idx) >= 2 else list(range(len(cameras)))
     if points != "frusta" and len(use) >= 2:
-        croot, note = cache_root(root, cache_dir)
+        croot, note = cache_root(None, cache_dir)
         if note:
             warnings.append(note)
+        sub = [specs[i] for i in use]
         try:
-            pts, cols, info = triangulate_known_poses([cameras[i] for i in use], [imgs[i] for i in use],
-                                                      [names[i] for i in use], croot, progress=progress)
-            warnings.append(f"initial points triangulated with pycolmap from {len(use)} posed images "
-                            f"(mean reprojection error {info['mean_reprojection_error']:.2f} px)")
+            pts, cols, info = triangulate_frames(lambda i: full_size_frame(sub[i], background), [f.name for f in sub],
+                                                 _triangulation_key(sub, background), croot, progress=progress)
+            warnings.append(f"initial points triangulated with pycolmap from {len(use)} posed images at full size "
+                            f"(mean reprojection error {info['mean_reprojection_error']:.2f} px"
+                            + (", cached" if "cached" in info else "") + ")")
             return pts, cols, "triangulated"
         except RuntimeError as exc:
             warnings.append(f"{exc}: initial points made from the camera frusta instead")

@@ -12,6 +12,7 @@ import numpy as np
 from ..types import Camera
 from .errors import SceneError
 from .images import composite, read_image_raw, resize_area
+from .plausible import check_train_size, check_translation
 
 
 @dataclass
@@ -51,6 +52,9 @@ class Scene:
         skipped: ``(image name, reason)`` for images that could not be used.
         camera_models: original camera model name -> number of images.
         split_rule: how the split was made, for the summary.
+        image_dir: the folder the images were read from (None for the procedural scene).
+        image_dir_reason: why that folder (e.g. ``images/`` is missing), for the summary.
+        downscale: the total factor the images were shrunk by relative to the camera model's size.
         gt_mesh: ground-truth mesh (procedural scene only).
         masks: per view ``[H, W]`` int16 object ids, -1 where nothing (procedural scene only).
         depths: per view ``[H, W]`` float32 camera-space z of the surface (procedural scene only).
@@ -71,6 +75,9 @@ class Scene:
     skipped: list = field(default_factory=list)
     camera_models: dict = field(default_factory=dict)
     split_rule: str = ""
+    image_dir: Optional[str] = None
+    image_dir_reason: str = ""
+    downscale: float = 1.0
     gt_mesh: Optional[GTMesh] = None
     masks: Optional[list] = None
     depths: Optional[list] = None
@@ -112,6 +119,8 @@ class Scene:
             lo, hi = centers.min(0), centers.max(0)
             lines.append("centres:    box " + " .. ".join("(" + ", ".join(f"{x:.3g}" for x in v) + ")"
                                                           for v in (lo, hi)))
+        if self.image_dir:
+            lines.append(f"image dir:  {self.image_dir}" + (f" ({self.image_dir_reason})" if self.image_dir_reason else ""))
         sizes = Counter(f"{im.shape[1]}x{im.shape[0]}" for im in self.images)
         size_txt = ", ".join(f"{k} ({v})" for k, v in sizes.most_common()) or "none"
         lines.append(f"images:     {len(self.images)} loaded, sizes {size_txt}")
@@ -172,6 +181,8 @@ def check_pose(m, where: str) -> np.ndarray:
     if abs(np.linalg.det(R) - 1.0) > 1e-3 or np.abs(R @ R.T - np.eye(3)).max() > 1e-3:
         raise SceneError(f"{where}: pose rotation is not orthonormal (det {np.linalg.det(R):.4g}); "
                          "fix or remove this image from the model")
+    check_translation(m[:3, 3], where, "translation")
+    check_translation(-R.T @ m[:3, 3], where, "camera centre")
     return m
 
 
@@ -265,26 +276,9 @@ def load_frames(frames: list, downscale: float, background, on_bad_image: str, w
             raise SceneError(f"{fr.path}: image is {w}x{h} but {first} of the same camera is {gw}x{gh}; "
                              "give each image size its own camera or resize the images to one size")
         group_size.setdefault(g, ((w, h), fr.name))
-        cam = fr.camera
-        if (w, h) != (cam.width, cam.height):
-            sx, sy = w / cam.width, h / cam.height
-            if abs(sx - sy) > 0.02 * max(sx, sy) + 1.0 / min(w, h):
-                raise SceneError(f"{fr.path}: image is {w}x{h} but {fr.source or 'its camera'} says "
-                                 f"{cam.width}x{cam.height} (different aspect ratio); use the images the "
-                                 "cameras were computed from")
-            cam = Camera(w, h, cam.fx * sx, cam.fy * sy, cam.cx * sx, cam.cy * sy, cam.world_to_camera)
-        img = raw
-        if fr.undistort is not None:
-            img, cam = fr.undistort(img, cam)
-        img = composite(img, background)
-        if downscale != 1:
-            nw, nh = max(1, int(round(cam.width / downscale))), max(1, int(round(cam.height / downscale)))
-            img = resize_area(img, nw, nh)
-            cam = cam.scaled(nw / cam.width) if (nw / cam.width) == (nh / cam.height) else Camera(
-                nw, nh, cam.fx * nw / cam.width, cam.fy * nh / cam.height, cam.cx * nw / cam.width,
-                cam.cy * nh / cam.height, cam.world_to_camera)
+        cam, img = prepare_frame(fr, raw, downscale, background)
         cameras.append(cam)
-        images.append(np.clip(img, 0.0, 1.0).astype(np.float32, copy=False))
+        images.append(img)
         kept.append(i)
     if not kept:
         first = frames[0].path if frames else "(no images)"
@@ -292,3 +286,39 @@ def load_frames(frames: list, downscale: float, background, on_bad_image: str, w
     if skipped:
         warnings.append(f"{len(skipped)} of {len(frames)} images skipped (missing or unreadable)")
     return cameras, images, kept, skipped
+
+
+def prepare_frame(fr: FrameSpec, raw: np.ndarray, downscale: float, background):
+    """The pinhole camera and float32 RGB image of frame ``fr`` from its decoded file ``raw``:
+    intrinsics scaled to the file's size, undistorted, alpha composited, shrunk by ``downscale``."""
+    h, w = raw.shape[:2]
+    cam = fr.camera
+    if (w, h) != (cam.width, cam.height):
+        sx, sy = w / cam.width, h / cam.height
+        if abs(sx - sy) > 0.02 * max(sx, sy) + 1.0 / min(w, h):
+            raise SceneError(f"{fr.path}: image is {w}x{h} but {fr.source or 'its camera'} says "
+                             f"{cam.width}x{cam.height} (different aspect ratio); use the images the "
+                             "cameras were computed from")
+        cam = Camera(w, h, cam.fx * sx, cam.fy * sy, cam.cx * sx, cam.cy * sy, cam.world_to_camera)
+    img = raw
+    if fr.undistort is not None:
+        img, cam = fr.undistort(img, cam)
+    img = composite(img, background)
+    if downscale != 1:
+        nw, nh = max(1, int(round(cam.width / downscale))), max(1, int(round(cam.height / downscale)))
+        check_train_size(nw, nh, (cam.width, cam.height), downscale, str(fr.path))
+        img = resize_area(img, nw, nh)
+        cam = cam.scaled(nw / cam.width) if (nw / cam.width) == (nh / cam.height) else Camera(
+            nw, nh, cam.fx * nw / cam.width, cam.fy * nh / cam.height, cam.cx * nw / cam.width,
+            cam.cy * nh / cam.height, cam.world_to_camera)
+    return cam, np.clip(img, 0.0, 1.0).astype(np.float32, copy=False)
+
+
+def full_size_frame(fr: FrameSpec, background):
+    """``(camera, image)`` of ``fr`` at its file's size (undistorted, composited), or None when
+    the file cannot be read: what triangulation reads, one image at a time."""
+    try:
+        raw = read_image_raw(fr.path)
+    except SceneError:
+        return None
+    return prepare_frame(fr, raw, 1.0, background)

@@ -1,8 +1,8 @@
 """Structure from motion with pycolmap, and initial points for scenes that have poses only.
 
 * :func:`run_photos_sfm`: SIFT features, matching and incremental mapping for a folder
-  of photos, with a progress display; the model is cached beside the photos (or in the
-  user cache when that folder is read-only) and reused when the photos have not changed.
+  of photos, with a progress display; the model is cached in the user cache (:func:`cache_root`)
+  and reused while the photos have not changed.
 * :func:`triangulate_known_poses`: features and matches as above, then pycolmap's
   point triangulator with the given cameras held fixed.
 * :func:`frusta_points`: the fallback: random points inside the volume most cameras see,
@@ -16,6 +16,7 @@ import json
 import os
 import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -23,9 +24,6 @@ import numpy as np
 
 from .errors import SceneError
 from .images import IMAGE_EXTENSIONS, read_image_size, write_image
-
-CACHE_DIR_NAME = ".tsplus_cache"
-
 
 def _pycolmap():
     try:
@@ -73,9 +71,11 @@ class _Progress:
             self.bar.close()
 
 
-def cache_root(scene_dir: Path, override=None) -> tuple[Path, str | None]:
-    """Folder for cached SfM results: ``override``, else ``$TSPLUS_CACHE``, else beside the photos
-    (``<scene>/.tsplus_cache``), else the user cache when the scene folder is read-only.
+def cache_root(scene_dir=None, override=None) -> tuple[Path, str | None]:
+    """Folder for cached SfM and triangulation results: ``override`` (asked for), else
+    ``$TSPLUS_CACHE``, else ``$XDG_CACHE_HOME/tsplus_wgpu`` (default ``~/.cache/tsplus_wgpu``);
+    never the scene folder unless asked.  Entries inside are keyed by the scene's content.
+    When the user cache cannot be written, a folder under the system temp folder is used.
 
     Returns ``(folder, note)`` where note explains a fallback.
     """
@@ -84,24 +84,24 @@ def cache_root(scene_dir: Path, override=None) -> tuple[Path, str | None]:
     env = os.environ.get("TSPLUS_CACHE")
     if env:
         return Path(env), None
-    beside = Path(scene_dir) / CACHE_DIR_NAME
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "tsplus_wgpu"
     try:
-        beside.mkdir(exist_ok=True)
-        probe = beside / ".write_test"
+        base.mkdir(parents=True, exist_ok=True)
+        probe = base / f".write_test{os.getpid()}"
         probe.write_text("")
         probe.unlink()
-        return beside, None
+        return base, None
     except OSError:
-        key = hashlib.sha1(str(Path(scene_dir).resolve()).encode()).hexdigest()[:12]
-        base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "tsplus_wgpu" / key
-        return base, f"{scene_dir} is read-only: SfM cache kept in {base}"
+        tmp = Path(tempfile.gettempdir()) / f"tsplus_wgpu-cache-{os.getuid() if hasattr(os, 'getuid') else 0}"
+        return tmp, f"{base} is not writable: cache kept in {tmp} (set XDG_CACHE_HOME or TSPLUS_CACHE)"
 
 
 def _fingerprint(paths) -> str:
+    """Content key of image files: names, sizes and modification times."""
     h = hashlib.sha1()
     for p in paths:
         st = Path(p).stat()
-        h.update(f"{Path(p).name}|{st.st_size}|{int(st.st_mtime)}\n".encode())
+        h.update(f"{Path(p).name}|{st.st_size}|{st.st_mtime_ns}\n".encode())
     return h.hexdigest()
 
 
@@ -148,7 +148,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     photo_dir = Path(photo_dir)
     if len(names) < 3:
         raise SceneError(f"{photo_dir}: {len(names)} photo(s) found, SfM needs at least 3 overlapping photos; add more")
-    root, note = cache_root(photo_dir.parent if photo_dir.name == "images" else photo_dir, cache)
+    root, note = cache_root(None, cache)
     if note:
         warnings.append(note)
     fp = _fingerprint([photo_dir / n for n in names])
@@ -159,7 +159,11 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
         return model_dir
     if work.exists():
         shutil.rmtree(work, ignore_errors=True)
-    work.mkdir(parents=True, exist_ok=True)
+    try:
+        work.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SceneError(f"{work}: cannot create the SfM cache folder ({exc.strerror}); set TSPLUS_CACHE or "
+                         "XDG_CACHE_HOME to a writable folder") from None
     db = work / "database.db"
     prog = _Progress(progress, 3 + len(names), f"SfM on {len(names)} photos")
     try:
@@ -266,7 +270,7 @@ def triangulate_known_poses(cameras: list, images: list, names: list, cache_dir:
 
     Args:
         cameras, images, names: the scene's loaded cameras and float images.
-        cache_dir: work folder; the result ``points.npz`` is cached there keyed on cameras and images.
+        cache_dir: cache folder; the result ``points.npz`` is cached there keyed on cameras and images.
 
     Returns:
         ``(points [P,3], colors [P,3], info dict)``.
@@ -274,24 +278,74 @@ def triangulate_known_poses(cameras: list, images: list, names: list, cache_dir:
     Raises:
         RuntimeError: pycolmap failed or produced too few points (the caller falls back to frusta).
     """
+    key = _posed_key(cameras, images, names) + f"_{max_image_size}_{exhaustive_max}"
+    return triangulate_frames(lambda i: (cameras[i], images[i]), names, key, cache_dir, progress=progress,
+                              max_image_size=max_image_size, exhaustive_max=exhaustive_max)
+
+
+def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progress: bool = True,
+                       max_image_size: int = 1600, exhaustive_max: int = 30):
+    """Triangulate points with fixed known poses from images loaded one at a time.
+
+    Args:
+        load_one: ``i -> (pinhole Camera, float image)`` for image ``i`` (None to leave it out);
+            called only when the result is not cached, and one image is held at a time.
+        names: the images' names (for the progress display).
+        key: cache key naming the images' content, cameras and parameters.
+        cache_dir: cache folder; the result is ``cache_dir/tri_<key>/points.npz``.
+
+    Returns / Raises: as :func:`triangulate_known_poses`.
+    """
     pycolmap = _pycolmap()
     pycolmap.set_random_seed(0)
-    work = Path(cache_dir) / f"tri_{_posed_key(cameras, images, names)}"
+    work = Path(cache_dir) / f"tri_{hashlib.sha1(key.encode()).hexdigest()[:16]}"
     result = work / "points.npz"
     if result.is_file():
-        z = np.load(result)
-        return z["xyz"], z["rgb"], {"cached": str(result), "mean_reprojection_error": float(z["err"])}
+        try:
+            z = np.load(result)
+            return z["xyz"], z["rgb"], {"cached": str(result), "mean_reprojection_error": float(z["err"])}
+        except Exception:  # a damaged cache entry: compute again
+            pass
     if work.exists():
         shutil.rmtree(work, ignore_errors=True)
     img_dir = work / "images"
-    img_dir.mkdir(parents=True, exist_ok=True)
-    safe = [f"{i:05d}.png" for i in range(len(names))]
-    for img, s in zip(images, safe):
-        write_image(img_dir / s, img)
-    db = work / "database.db"
-    prog = _Progress(progress, 3, f"triangulating points from {len(names)} posed images")
     try:
-        pairs = None if len(names) <= exhaustive_max else _neighbour_pairs(cameras, safe)
+        img_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RuntimeError(f"cache folder {work} cannot be written ({exc.strerror})") from None
+    cameras, safe = [], []
+    for i in range(len(names)):
+        got = load_one(i)
+        if got is None:
+            continue
+        cam, img = got
+        cameras.append(cam)
+        safe.append(f"{len(safe):05d}.png")
+        write_image(img_dir / safe[-1], img)
+        del img
+    if len(safe) < 2:
+        raise RuntimeError(f"only {len(safe)} image(s) could be read for triangulation")
+    rec = _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaustive_max)
+    pts = list(rec.points3D.values())
+    if len(pts) < 50:
+        raise RuntimeError(f"pycolmap triangulated only {len(pts)} points")
+    xyz = np.array([p.xyz for p in pts], np.float64)
+    rgb = np.array([p.color for p in pts], np.float64) / 255.0
+    err = float(rec.compute_mean_reprojection_error())
+    tmp = work / f"points.tmp{os.getpid()}.npz"
+    np.savez(tmp, xyz=xyz, rgb=rgb, err=err)
+    os.replace(tmp, result)
+    shutil.rmtree(img_dir, ignore_errors=True)
+    return xyz, rgb, {"mean_reprojection_error": err, "reconstruction": rec, "work": str(work)}
+
+
+def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaustive_max):
+    """Features, matches and pycolmap's point triangulator on the PNGs ``work/images/<safe>``."""
+    img_dir = work / "images"
+    db = work / "database.db"
+    prog = _Progress(progress, 3, f"triangulating points from {len(safe)} posed images")
+    try:
+        pairs = None if len(safe) <= exhaustive_max else _neighbour_pairs(cameras, safe)
         prog.stage("extracting SIFT features", 0)
         _extract_and_match(pycolmap, db, img_dir, safe, pycolmap.CameraMode.PER_IMAGE, "PINHOLE",
                            pairs=pairs, max_image_size=max_image_size, progress=prog,
@@ -308,15 +362,7 @@ def triangulate_known_poses(cameras: list, images: list, names: list, cache_dir:
         raise RuntimeError(f"pycolmap triangulation failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}") from None
     finally:
         prog.close()
-    pts = list(rec.points3D.values())
-    if len(pts) < 50:
-        raise RuntimeError(f"pycolmap triangulated only {len(pts)} points")
-    xyz = np.array([p.xyz for p in pts], np.float64)
-    rgb = np.array([p.color for p in pts], np.float64) / 255.0
-    err = float(rec.compute_mean_reprojection_error())
-    np.savez(result, xyz=xyz, rgb=rgb, err=err)
-    shutil.rmtree(img_dir, ignore_errors=True)
-    return xyz, rgb, {"mean_reprojection_error": err, "reconstruction": rec, "work": str(work)}
+    return rec
 
 
 def frusta_points(cameras: list, images: list, n: int = 20000, bounds=None, seed: int = 0):

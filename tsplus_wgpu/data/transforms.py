@@ -17,6 +17,7 @@ import numpy as np
 from ..types import Camera
 from .errors import SceneError
 from .images import read_image_size
+from .plausible import check_angle, check_distortion, check_focal, check_size
 from .scene import FrameSpec, check_pose
 from .undistort import OpenCVUndistorter
 
@@ -108,6 +109,9 @@ def _intrinsics(merged, path, where):
     """``(w, h, fl_x, fl_y, cx, cy)`` of a frame (its keys override the file's)."""
     w = _num(merged, "w", where)
     h = _num(merged, "h", where)
+    for key, v in (("w", w), ("h", h)):
+        if v is not None:
+            check_size(v, where, key)
     if w is None or h is None:
         if not path.is_file():
             w, h = None, None
@@ -123,13 +127,15 @@ def _intrinsics(merged, path, where):
     fl_x, fl_y = _num(merged, "fl_x", where), _num(merged, "fl_y", where)
     ax, ay = _num(merged, "camera_angle_x", where), _num(merged, "camera_angle_y", where)
     if fl_x is None and ax is not None:
-        fl_x = 0.5 * w / math.tan(0.5 * ax)
+        fl_x = 0.5 * w / math.tan(0.5 * check_angle(ax, where, "camera_angle_x"))
     if fl_y is None and ay is not None and fl_x is None:
-        fl_y = 0.5 * h / math.tan(0.5 * ay)
+        fl_y = 0.5 * h / math.tan(0.5 * check_angle(ay, where, "camera_angle_y"))
     if fl_x is None and fl_y is None:
         raise SceneError(f"{where}: no focal length ('fl_x' or 'camera_angle_x'); add it to the file")
     fl_x = fl_x if fl_x is not None else fl_y
     fl_y = fl_y if fl_y is not None else fl_x
+    check_focal(fl_x, w, where, "fl_x")
+    check_focal(fl_y, h, where, "fl_y")
     cx = _num(merged, "cx", where)
     cy = _num(merged, "cy", where)
     cx = w / 2 if cx is None else cx
@@ -160,6 +166,9 @@ def transforms_frames(root: Path, files: list, variant: str, warnings: list):
             if model not in PINHOLE_MODELS | FISHEYE_MODELS:
                 raise SceneError(f"{where}: unknown camera_model {model!r}; supported: "
                                  f"{', '.join(sorted(PINHOLE_MODELS | FISHEYE_MODELS))}")
+            if not isinstance(fr["file_path"], str) or not fr["file_path"].strip():
+                raise SceneError(f"{where}: 'file_path' is {fr['file_path']!r}, expected the image's path as a "
+                                 "string (e.g. \"images/0001.png\"); fix the file")
             path = _resolve_image(fpath.parent, str(fr["file_path"]))
             name = str(Path(fr["file_path"]).as_posix()).lstrip("./") or path.name
             if path.suffix and not Path(name).suffix:
@@ -170,10 +179,10 @@ def transforms_frames(root: Path, files: list, variant: str, warnings: list):
                 cam = Camera(int(round(w)), int(round(h)), fl_x, fl_y, cx, cy, w2c)
             except ValueError as exc:
                 raise SceneError(f"{where}: {exc}; fix the file") from None
-            if fisheye:
-                coeffs = tuple(_num(merged, k, where) or 0.0 for k in ("k1", "k2", "k3", "k4"))
-            else:
-                coeffs = tuple(_num(merged, k, where) or 0.0 for k in ("k1", "k2", "p1", "p2", "k3"))
+            keys = ("k1", "k2", "k3", "k4") if fisheye else ("k1", "k2", "p1", "p2", "k3")
+            raw = {k: _num(merged, k, where) for k in keys}
+            check_distortion(raw, where)
+            coeffs = tuple(raw[k] or 0.0 for k in keys)
             und = None
             if any(coeffs):
                 key = (coeffs, fisheye)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..types import SH_C0, TriangleModel
-from .atomic import write_bytes
+from .atomic import write_bytes, write_error
 
 FORMATS = ("ply", "glb", "obj")
 BAKES = ("dc", "views")
@@ -122,10 +122,8 @@ def _atomic_bytes(path, data: bytes):
         raise ExportError(f"--out {path}: is a folder")
     try:
         write_bytes(path, data)
-    except PermissionError:
-        raise ExportError(f"--out {path}: permission denied") from None
-    except OSError as exc:
-        raise ExportError(f"--out {path}: cannot write ({exc.strerror or exc})") from None
+    except OSError as exc:                      # a WriteError: names the path, the cause and the fix
+        raise ExportError(f"--out {write_error(path, exc)}") from None
 
 
 def _trimesh(positions, triangles, colors):
@@ -251,7 +249,15 @@ def read_ply(path) -> TriangleModel:
     """A :class:`TriangleModel` from a PLY: this module's layout gives SH and opacity back
     exactly; any other coloured mesh PLY gives SH DC from its colours and opacity 1."""
     path = Path(path)
-    data = path.read_bytes()
+    try:
+        return _model_from_ply(path, path.read_bytes())
+    except ExportError:
+        raise
+    except ValueError as exc:                   # truncated data, NaN vertices, bad indices, ...
+        raise ExportError(f"{path}: {exc}; not a usable mesh") from None
+
+
+def _model_from_ply(path, data: bytes) -> TriangleModel:
     parsed = _parse_binary_ply(data)
     if parsed is not None:
         v, faces = parsed
@@ -292,4 +298,7 @@ def read_mesh(path) -> TriangleModel:
             col = np.asarray(vc, np.float64)[:, :3] / 255.0
     except Exception:
         pass
-    return TriangleModel(pos, faces, ((col - 0.5) / SH_C0)[:, None, :], np.ones(len(pos)))
+    try:
+        return TriangleModel(pos, faces, ((col - 0.5) / SH_C0)[:, None, :], np.ones(len(pos)))
+    except ValueError as exc:                   # NaN vertices, indices out of range, ...
+        raise ExportError(f"{path}: {exc}; not a usable mesh") from None

@@ -4,25 +4,120 @@ Each field is declared once, with its default, its help text and (for the settin
 ``tsplus train`` exposes) its command-line flag in the field's metadata; ``cli/train.py`` builds
 its options from :func:`cli_options`, so the library and the command cannot disagree on a
 default. A field whose default differs under ``--preset quick`` names that value as well
-(``quick=``); :meth:`TrainConfig.preset` applies it.
+(``quick=``); :meth:`TrainConfig.preset` applies it. Each field also names its ``check``: the
+type and range it accepts, enforced in one place (:func:`check_settings`) for the library
+(``TrainConfig(...)`` raises), a ``--config`` file and the command-line flags alike.
 """
 
 from __future__ import annotations
 
+import difflib
+import math
+import numbers
+import os
 from dataclasses import MISSING, dataclass, field, fields
 
-from .schedules import SIGMA_FINAL, Schedule
+from ..errors import UserError
+from .schedules import OPACITY_MODES, SH_DEGREE_MAX, SIGMA_FINAL, Schedule
+
+#: the most iterations a run may have (333 x the paper's 30000; more is a typo, not a plan)
+MAX_ITERATIONS = 10_000_000
+#: the largest densification cap (vertex indices are 32-bit on the GPU)
+MAX_VERTICES = 2**31 - 1
+#: seeds are unsigned 32-bit (numpy's default_rng([seed, epoch]))
+MAX_SEED = 2**32 - 1
 
 
-def option(default=MISSING, help="", flag=None, quick=None, default_factory=MISSING, **argparse):
+class ConfigError(UserError, ValueError):
+    """A training setting of the wrong type or out of range, or an unknown key: one line
+    naming the field (or flag, or config file and key) and what it accepts."""
+
+
+def option(default=MISSING, help="", flag=None, quick=None, default_factory=MISSING, check=None, **argparse):
     """A :class:`TrainConfig` field: ``default`` (or ``default_factory``), ``help`` (one
     sentence, no default in it: the CLI appends that), ``flag`` (the ``tsplus train`` option,
-    None: config files only), ``quick`` (the default under ``--preset quick`` when it differs)
-    and further ``argparse`` keywords for the flag (``type``, ``metavar``, ``choices``...)."""
-    meta = dict(help=help, flag=flag, quick=quick, argparse=argparse)
+    None: config files only), ``quick`` (the default under ``--preset quick`` when it differs),
+    ``check`` (a :mod:`.checks` checker: the accepted type and range) and further ``argparse``
+    keywords for the flag (``type``, ``metavar``, ``choices``...)."""
+    meta = dict(help=help, flag=flag, quick=quick, check=check, argparse=argparse)
     if default_factory is not MISSING:
         return field(default_factory=default_factory, metadata=meta)
     return field(default=default, metadata=meta)
+
+
+class _Check:
+    """A field's accepted values: ``expected`` (words for the error line) and ``convert(value)``
+    (the value in its canonical type; ``ValueError`` when it is not accepted). ``on_disk``
+    (``(expected, accept)``): a further check of the file system, made for the command line and
+    config files (``disk=True``), not for the library (a config read back from a checkpoint)."""
+
+    def __init__(self, expected, accept, convert=lambda v: v, on_disk=None):
+        self.expected, self._accept, self._convert, self._on_disk = expected, accept, convert, on_disk
+
+    def convert(self, value, disk=False):
+        for expected, accept in [(self.expected, self._accept)] + ([self._on_disk] if disk and self._on_disk else []):
+            try:
+                ok = bool(accept(value))
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise ValueError(expected)
+        return self._convert(value)
+
+
+def _range_text(lo, hi, lo_open=False):
+    def num(x):
+        return f"{x:g}" if isinstance(x, float) else str(x)
+    if hi is None:
+        return f"{'>' if lo_open else '>='} {num(lo)}"
+    return f"in {'(' if lo_open else '['}{num(lo)}, {num(hi)}]"
+
+
+def _is_int(v):
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+
+def _is_real(v):
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def integer(lo, hi=None):
+    """An integer (not a bool, not 1.5) in ``[lo, hi]`` (``hi`` None: no upper bound)."""
+    return _Check(f"an integer {_range_text(lo, hi)}", lambda v: _is_int(v) and lo <= v and (hi is None or v <= hi),
+                  int)
+
+
+def real(lo, hi=None, lo_open=False):
+    """A finite number in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``), returned as a float."""
+    return _Check(f"a finite number {_range_text(lo, hi, lo_open)}",
+                  lambda v: _is_real(v) and (v > lo if lo_open else v >= lo) and (hi is None or v <= hi), float)
+
+
+def boolean():
+    return _Check("true or false", lambda v: isinstance(v, bool) or (type(v).__module__ == "numpy" and type(v).__name__ in ("bool", "bool_")),
+                  bool)
+
+
+def choice(*values):
+    return _Check("one of " + ", ".join(repr(c) for c in values), lambda v: isinstance(v, str) and v in values)
+
+
+def rgb():
+    """Three finite numbers in [0, 1] (a list or tuple), returned as a tuple of floats."""
+    return _Check("three numbers in [0, 1] (R, G, B)",
+                  lambda v: isinstance(v, (list, tuple)) and len(v) == 3 and all(_is_real(x) and 0 <= x <= 1
+                                                                                  for x in v),
+                  lambda v: tuple(float(x) for x in v))
+
+
+def optional_path():
+    return _Check("a folder path (or none)", lambda v: v is None or isinstance(v, (str, os.PathLike)) and str(v) != "",
+                  lambda v: None if v is None else os.fspath(v),
+                  on_disk=("an existing folder (or none)", lambda v: v is None or os.path.isdir(v)))
+
+
+def mapping():
+    return _Check("a table of notes", lambda v: isinstance(v, dict), dict)
 
 
 @dataclass
@@ -34,44 +129,54 @@ class TrainConfig:
     ``ablations.ABLATIONS`` names the rows)."""
 
     iterations: int = option(30000, "optimisation steps (the paper: 30000)", flag="--iterations", quick=3000,
-                             type=int)
-    quick: bool = option(False, "scale every schedule's iteration constants to `iterations` (--preset quick)")
-    indoor: bool = option(False, "the indoor constants of method.md", flag="--indoor", action="store_const",
-                          const=True)
-    seed: int = option(0, "seed of the view order (nothing else is random)", flag="--seed", type=int)
-    sh_degree: int = option(3, "SH degree of the model's storage (the schedule raises the trained degree)")
-    background: tuple = option((0.0, 0.0, 0.0), "RGB behind the triangles (tsplus train: the scene's)")
-    near: float = option(0.01, "near plane (scene units)")
+                             check=integer(1, MAX_ITERATIONS), type=int)
+    quick: bool = option(False, "scale every schedule's iteration constants to `iterations` (--preset quick)", check=boolean())
+    indoor: bool = option(False, "the indoor constants of method.md", flag="--indoor", check=boolean(),
+                          action="store_const", const=True)
+    seed: int = option(0, "seed of the view order (nothing else is random)", flag="--seed",
+                     check=integer(0, MAX_SEED), type=int)
+    sh_degree: int = option(3, "SH degree of the model's storage (the schedule raises the trained degree)",
+                            check=integer(0, SH_DEGREE_MAX))
+    background: tuple = option((0.0, 0.0, 0.0), "RGB behind the triangles (tsplus train: the scene's)",
+                               check=rgb())
+    near: float = option(0.01, "near plane (scene units)", check=real(0.0, lo_open=True))
     log_every: int = option(100, "iterations between log lines (host readback only then; 0: none)",
-                            flag="--log-every", quick=25, type=int)
+                            flag="--log-every", quick=25, check=integer(0), type=int)
     checkpoint_every: int = option(1000, "iterations between checkpoints (0: only at the end or on Ctrl-C)",
-                                   flag="--checkpoint-every", type=int)
-    opacity_reg: bool = option(True, "apply the early opacity loss of method.md")
+                                   flag="--checkpoint-every", check=integer(0),
+                                   type=int)
+    opacity_reg: bool = option(True, "apply the early opacity loss of method.md", check=boolean())
     topology: bool = option(
         True, "pruning and densification during training (the final cleanup runs either way). The quick preset "
               "keeps at least 3 epochs between topology events and a 10x opacity learning rate (config keys "
               "quick_topology_epochs, quick_opacity_lr_scale) so that opacities separate before a prune. Measured "
               "on procedural:small, quick, 3000 iterations: held-out mesh PSNR 25.56 dB with topology vs 22.14 dB "
               "without; on runs of a few hundred iterations on a tiny scene it does not pay off (tiny, 600: 20.91 "
-              "on vs 21.92 dB off): use off there", flag="--topology", choices=["on", "off"])
-    max_vertices: int = option(3_000_000, "densification cap (method.md)", flag="--max-vertices", type=int)
+              "on vs 21.92 dB off): use off there", flag="--topology", check=boolean(), choices=["on", "off"])
+    max_vertices: int = option(3_000_000, "densification cap (method.md)", flag="--max-vertices",
+                               check=integer(0, MAX_VERTICES), type=int)
     densify_stop_rel: float = option(
         0.01, "stop densifying when the mean training L1 of the last 3 topology windows improved by less than this "
-              "fraction on the 3 before (0: never)", flag="--densify-stop", type=float,
+              "fraction on the 3 before (0: never)", flag="--densify-stop", check=real(0.0, 1.0), type=float,
         metavar="DENSIFY_STOP")
-    densify_stop_windows: int = option(3, "K of the densification stop: windows in each of the two compared means")
+    densify_stop_windows: int = option(3, "K of the densification stop: windows in each of the two compared means",
+                                      check=integer(1))
     quick_topology_epochs: float = option(
         3.0, "with quick, at least this many epochs (passes over the training views) between topology events, so "
              "the first prune comes after the opacities have had time to separate and every weight prune sees "
-             "every view")
+             "every view", check=real(0.0))
     quick_opacity_lr_scale: float = option(
         10.0, "with quick, the opacity learning rate is multiplied by this (a 300-iteration run has 1/100 of the "
-              "paper's steps: at 0.03 a logit moves at most 1.2 before the first scaled prune)")
-    hard_prune: bool = option(True, "ablation: False drops the opacity criterion of pruning")
-    weight_prune: bool = option(True, "ablation: False drops the blending-weight criterion of pruning")
-    sigma_decay: bool = option(True, "ablation: False trains at sigma_final throughout")
-    sigma_final: float = option(SIGMA_FINAL, "ablation: final sigma, 0.0001 (hard) or 0.1 (soft)")
-    opacity: str = option("opaque", "ablation: 'opaque' (the floor ramps to 0.9999) or 'free' (no floor)")
+              "paper's steps: at 0.03 a logit moves at most 1.2 before the first scaled prune)", check=real(0.0, lo_open=True))
+    hard_prune: bool = option(True, "ablation: False drops the opacity criterion of pruning",
+                             check=boolean())
+    weight_prune: bool = option(True, "ablation: False drops the blending-weight criterion of pruning",
+                               check=boolean())
+    sigma_decay: bool = option(True, "ablation: False trains at sigma_final throughout", check=boolean())
+    sigma_final: float = option(SIGMA_FINAL, "ablation: final sigma, 0.0001 (hard) or 0.1 (soft)",
+                                check=real(0.0, 1.0, lo_open=True))
+    opacity: str = option("opaque", "ablation: 'opaque' (the floor ramps to 0.9999) or 'free' (no floor)",
+                        check=choice(*OPACITY_MODES))
     normals: str | None = option(
         None, "normal-map priors: add the normal loss 0.05 (indoor 0.025) * mean(1 - <N_rendered, N_prior>) for "
               "iterations > 5000 (scaled with --preset quick) on the training views that have a map (off without "
@@ -80,9 +185,15 @@ class TrainConfig:
               "prior); normals in the view's camera space, OpenCV axes (x right, y down, z forward), facing the "
               "camera (z mostly < 0); pixels whose normal is (near) zero, black or masked are ignored; other sizes "
               "are area-resized with a warning. `tsplus inspect procedural:tiny --write-normals DIR` writes the "
-              "procedural scene's true maps", flag="--normals", metavar="DIR")
+              "procedural scene's true maps", flag="--normals", check=optional_path(), metavar="DIR")
     extra: dict = option(help="free-form notes stored with the run (scene, downscale, ablation...)",
-                         default_factory=dict)
+                         default_factory=dict, check=mapping())
+
+    def __post_init__(self):
+        """Check every field (:func:`check_settings`): a :class:`ConfigError` naming the field
+        and its flag for a value of the wrong type or out of range."""
+        for name, value in check_settings({f.name: getattr(self, f.name) for f in fields(self)}).items():
+            setattr(self, name, value)
 
     def schedule(self, views=1):
         return Schedule(total=int(self.iterations), indoor=bool(self.indoor), quick=bool(self.quick),
@@ -102,6 +213,53 @@ class TrainConfig:
                    "topology", "max_vertices", "densify_stop_rel", "densify_stop_windows", "quick_topology_epochs",
                    "quick_opacity_lr_scale", "hard_prune", "weight_prune", "sigma_decay", "sigma_final", "opacity",
                    "normals")
+
+
+def _label(f, source):
+    """How an error names field ``f``: by its flag (``source`` "flags"), as a key of a config
+    file (``source`` that file's label), or as the field with its flag (``source`` None)."""
+    flag = f.metadata.get("flag")
+    if source == "flags":
+        return flag or f.name
+    if source:
+        return f"{source}: {f.name}"
+    return f"{f.name} ({flag})" if flag else f.name
+
+
+def _shown(value):
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def check_settings(settings, source=None):
+    """``settings`` (a dict of :class:`TrainConfig` keys) with every value checked against its
+    field's ``check`` and converted to the field's type (a list background becomes a tuple of
+    floats, an integral ``densify_stop_rel`` a float). ``source``: how errors name a key: None
+    (the library: ``max_vertices (--max-vertices)``), ``"flags"`` (``--max-vertices``) or a
+    config file's label (``--config run.toml: max_vertices``). With a ``source`` the file system
+    is checked too (``normals`` must be an existing folder).
+
+    Raises:
+        ConfigError: an unknown key (a table of a TOML file included), or a value of the wrong
+            type or out of range; one line naming the key and what it accepts.
+    """
+    known = {f.name: f for f in fields(TrainConfig)}
+    unknown = sorted(set(settings) - set(known), key=str)
+    if unknown:
+        k = unknown[0]
+        what = "table" if isinstance(settings[k], dict) else "key"
+        close = difflib.get_close_matches(str(k), list(known), n=1)
+        raise ConfigError(f"{source + ': ' if source and source != 'flags' else ''}unknown {what} {k!r}"
+                          f"{f' (and {len(unknown) - 1} more)' if len(unknown) > 1 else ''}; "
+                          + (f"did you mean {close[0]!r}? " if close else "") + f"the settings are {', '.join(known)}")
+    out = {}
+    for name, value in settings.items():
+        check = known[name].metadata.get("check")
+        try:
+            out[name] = value if check is None else check.convert(value, disk=source is not None)
+        except ValueError as exc:
+            raise ConfigError(f"{_label(known[name], source)}: expected {exc}, got {_shown(value)}") from None
+    return out
 
 
 def preset_defaults(quick):
@@ -134,4 +292,5 @@ def cli_options():
     return out
 
 
-__all__ = ["TrainConfig", "option", "preset_defaults", "cli_options"]
+__all__ = ["TrainConfig", "ConfigError", "MAX_ITERATIONS", "MAX_VERTICES", "MAX_SEED", "check_settings", "option",
+           "preset_defaults", "cli_options"]

@@ -1,13 +1,17 @@
 """The training loop behind :meth:`~.trainer.Trainer.train`: steps, ``log.jsonl``, checkpoints,
-Ctrl-C, the progress bar, the step hooks (live viewer) and the :class:`~.callbacks.TrainCallback`
-hooks (benchmarks)."""
+Ctrl-C / SIGTERM / SIGHUP (finish the step, checkpoint, raise :class:`Interrupted`), the
+progress bar, the step hooks (live viewer) and the :class:`~.callbacks.TrainCallback` hooks
+(benchmarks)."""
 
 from __future__ import annotations
 
 import json
+import os
 import signal
 import time
 from pathlib import Path
+
+from ..io.atomic import write_error
 
 
 def _log_record(trainer, stats, ips):
@@ -21,29 +25,58 @@ def _log_record(trainer, stats, ips):
     return rec
 
 
-class _Sigint:
-    """Ctrl-C finishes the current step (``stop`` becomes True) instead of raising."""
+class Interrupted(KeyboardInterrupt):
+    """Training stopped by a signal (``signum``: SIGINT, SIGTERM, SIGHUP) or a step hook
+    (``signum`` None) after the checkpoint was written."""
+
+    def __init__(self, signum=None):
+        super().__init__(signum)
+        self.signum = signum
+
+    @property
+    def signal_name(self):
+        return signal.Signals(self.signum).name if self.signum else "a step hook"
+
+
+#: the signals that stop training after the current step, with a checkpoint: Ctrl-C, and what
+#: ``kill``, ``timeout``, job schedulers (SIGTERM) and a closed terminal (SIGHUP) send
+STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+class _StopSignals:
+    """Ctrl-C, SIGTERM and SIGHUP finish the current step (``stop`` becomes True, ``signum``
+    the signal) instead of raising or killing the process. A signal the process ignores
+    (``nohup``: SIGHUP; a background job: SIGINT) stays ignored."""
 
     def __init__(self):
         self.stop = False
-        try:
-            self.old = signal.signal(signal.SIGINT, self.handle)
-        except ValueError:     # not the main thread: Ctrl-C is not ours to catch
-            self.old = None
+        self.signum = None
+        self.old = {}
+        for sig in STOP_SIGNALS:
+            try:
+                if signal.getsignal(sig) == signal.SIG_IGN:
+                    continue
+                self.old[sig] = signal.signal(sig, self.handle)
+            except (ValueError, OSError):     # not the main thread: the signals are not ours to catch
+                break
 
-    def handle(self, *args):
+    def handle(self, signum, frame):
         self.stop = True
+        if self.signum is None:
+            self.signum = signum
 
     def restore(self):
-        if self.old is not None:
-            signal.signal(signal.SIGINT, self.old)
+        for sig, old in self.old.items():
+            signal.signal(sig, old)
 
 
 class TrainLoop:
     """One call of :meth:`~.trainer.Trainer.train` (see there for the arguments)."""
 
-    def __init__(self, trainer, out_dir=None, progress=True, until=None, log_every=None, callbacks=()):
+    def __init__(self, trainer, out_dir=None, progress=True, until=None, log_every=None, callbacks=(),
+                 checkpoint_at_end=True):
         cfg = trainer.config
+        self.checkpoint_at_end = checkpoint_at_end
         self.t = trainer
         self.until = int(cfg.iterations if until is None else until)
         self.log_every = int(cfg.log_every if log_every is None else log_every)
@@ -53,15 +86,27 @@ class TrainLoop:
 
     def _write(self, records):
         if self.out is not None and records:
-            with open(self.out / "log.jsonl", "a") as f:
-                for rec in records:
-                    f.write(json.dumps(rec) + "\n")
+            path, size = self.out / "log.jsonl", None
+            try:
+                with open(path, "a") as f:
+                    size = f.tell()
+                    f.write("".join(json.dumps(rec) + "\n" for rec in records))
+            except OSError as exc:
+                if size is not None:       # no half line left behind (disk full)
+                    try:
+                        os.truncate(path, size)
+                    except OSError:
+                        pass
+                raise write_error(path, exc) from None
 
     def run(self):
         t, out = self.t, self.out
         if out is not None:
-            out.mkdir(parents=True, exist_ok=True)
-        sigint = _Sigint()
+            try:
+                out.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise write_error(out, exc) from None
+        stop = _StopSignals()
         self.bar = None
         if self.progress:
             from tqdm import tqdm
@@ -69,17 +114,20 @@ class TrainLoop:
         try:
             self.t_last, self.it_last = time.perf_counter(), t.iteration
             t0, base_elapsed = time.perf_counter(), t.elapsed
-            while t.iteration < self.until and not sigint.stop:
+            while t.iteration < self.until and not stop.stop:
                 if self.one_step(t0, base_elapsed) is False:
-                    sigint.stop = True
+                    stop.stop = True
+            if self.bar is not None:
+                self.bar.close()
+                self.bar = None
+            if out is not None and (stop.stop or self.checkpoint_at_end):
+                t.save_checkpoint(out / "checkpoint.npz")    # a second signal now waits for it
         finally:
             if self.bar is not None:
                 self.bar.close()
-            sigint.restore()
-        if out is not None:
-            t.save_checkpoint(out / "checkpoint.npz")
-        if sigint.stop:
-            raise KeyboardInterrupt
+            stop.restore()
+        if stop.stop:
+            raise Interrupted(stop.signum)
         return t
 
     def one_step(self, t0, base_elapsed):
@@ -114,9 +162,10 @@ class TrainLoop:
             t.topology.events = []
         if self.bar is not None and stats is not None:
             self.bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}", tris=t.m)
-        if self.out is not None and cfg.checkpoint_every and t.iteration % cfg.checkpoint_every == 0:
+        last = t.iteration >= self.until and not self.checkpoint_at_end     # the caller writes that one
+        if self.out is not None and cfg.checkpoint_every and t.iteration % cfg.checkpoint_every == 0 and not last:
             t.save_checkpoint(self.out / "checkpoint.npz")
         return go_on
 
 
-__all__ = ["TrainLoop"]
+__all__ = ["TrainLoop", "Interrupted", "STOP_SIGNALS"]

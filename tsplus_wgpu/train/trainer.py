@@ -68,7 +68,7 @@ from ..kernels.loss import DownsampleArea, DownsampleAreaT, PackVOut, supersampl
 from ..kernels.optim import Adam, OpacityRegGradient, TrainActivate, TrainGrads
 from ..render.device_model import DeviceModel
 from ..types import TriangleModel
-from .checkpoint import CHECKPOINT_VERSION, read_checkpoint, resume_config
+from .checkpoint import CHECKPOINT_VERSION, CheckpointError, read_checkpoint, resume_config
 from .config import TrainConfig
 from .init import SH_C0, init_from_points
 from .losses import ImageLoss
@@ -369,14 +369,16 @@ class Trainer:
         return state
 
     # ------------------------------------------------------------------ loop
-    def train(self, out_dir=None, progress=True, until=None, log_every=None, callbacks=()):
+    def train(self, out_dir=None, progress=True, until=None, log_every=None, callbacks=(), checkpoint_at_end=True):
         """Run to ``until`` (default: the configured iterations; calling again continues from
         where it stopped). Logs to ``out_dir/log.jsonl`` every ``log_every`` iterations
         (default: the config's); checkpoints every ``checkpoint_every`` iterations and at the
-        end; Ctrl-C (SIGINT) finishes the current step, writes a checkpoint and raises
-        KeyboardInterrupt. ``callbacks``: :class:`~.callbacks.TrainCallback` objects asked
-        before and told after every step. Returns ``self``."""
-        return TrainLoop(self, out_dir, progress, until, log_every, callbacks).run()
+        end (unless ``checkpoint_at_end`` is False: ``tsplus train`` writes the mesh first);
+        Ctrl-C (SIGINT), SIGTERM and SIGHUP finish the current step, write a checkpoint and raise
+        :class:`~.loop.Interrupted` (a KeyboardInterrupt). ``callbacks``:
+        :class:`~.callbacks.TrainCallback` objects asked before and told after every step.
+        Returns ``self``."""
+        return TrainLoop(self, out_dir, progress, until, log_every, callbacks, checkpoint_at_end).run()
 
     # ------------------------------------------------------------------ checkpoints
     def state_arrays(self):
@@ -410,12 +412,13 @@ class Trainer:
         atomic_write(path, lambda f: np.savez(f, **arrays))
 
     @classmethod
-    def resume(cls, path, scene, config: TrainConfig | None = None, renderer=None, normals=None):
+    def resume(cls, path, scene, config: TrainConfig | None = None, renderer=None, normals=None, loaded=None):
         """A trainer continuing from a checkpoint. ``config`` (optional) must agree with the
         checkpoint's on :attr:`TrainConfig.RESUME_KEYS`; other fields (logging) come from it.
         ``normals``: the normal priors when they were given to the trainer directly (else they
-        are read again from the config's ``normals`` folder)."""
-        arrays, meta = read_checkpoint(path)
+        are read again from the config's ``normals`` folder). ``loaded``: the checkpoint's
+        ``(arrays, meta)`` when already read (:func:`~.checkpoint.read_checkpoint`)."""
+        arrays, meta = read_checkpoint(path) if loaded is None else loaded
         config = resume_config(meta, config)
         sh = arrays["sh_planar"].transpose(1, 0, 2)
         init = TriangleModel(arrays["positions"], arrays["triangles"], sh,
@@ -424,7 +427,11 @@ class Trainer:
         t.iteration = int(meta["iteration"])
         t.elapsed = float(meta.get("elapsed", 0.0))
         t.set_state(VertexState.from_flat(arrays, arrays.get("max_weight_acc")))
-        t.topology.load_state(meta.get("topology", {}), arrays.get("l1_ring"))
+        ring = arrays.get("l1_ring")
+        if ring is not None and ring.shape != (t.topology.ring_size,):
+            raise CheckpointError(f"--resume: {path}: array 'l1_ring' has shape {ring.shape}, expected "
+                                  f"({t.topology.ring_size},); the checkpoint is corrupt")
+        t.topology.load_state(meta.get("topology", {}), ring)
         return t
 
     # ------------------------------------------------------------------ results

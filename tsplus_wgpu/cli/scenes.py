@@ -1,0 +1,49 @@
+"""The scene a command names on its command line (``SCENE``, ``--images``, ``--downscale``),
+loaded with the loader's warnings printed: shared by ``train``, ``eval``, ``view``, ``select``
+and ``export`` (``inspect`` prints them in its summary)."""
+
+from __future__ import annotations
+
+import sys
+
+from ..errors import UserError
+
+IMAGES_HELP = ("image folder inside the scene (default: images; images_N when --downscale is N or when images/ is "
+               "missing)")
+
+
+def add_images_arg(p, help=IMAGES_HELP):
+    """``--images DIR``: the image folder of the scene, as ``tsplus inspect`` takes it."""
+    p.add_argument("--images", default=None, metavar="DIR", help=help)
+
+
+def is_procedural(scene_arg):
+    return scene_arg is None or str(scene_arg).split(":")[0] == "procedural"
+
+
+def print_scene_warnings(scene, file=None):
+    """One ``warning: ...`` line per loader warning (skipped images, dropped points...)."""
+    for w in getattr(scene, "warnings", None) or ():
+        print(f"warning: {w}", file=file or sys.stderr, flush=True)
+
+
+def load_cli_scene(scene_arg, downscale=1, seed=0, images=None, warn=True):
+    """The scene ``scene_arg`` names (``procedural[:size]`` or a folder), its images from the
+    folder ``images`` when given; the loader's warnings printed (``warn``) and kept on
+    ``scene.warnings`` for the run's config.json / metrics.json."""
+    from ..data import load_scene_arg
+    if images is None:
+        scene = load_scene_arg(scene_arg, downscale, seed)
+    elif is_procedural(scene_arg):
+        raise UserError(f"--images {images}: the procedural scene has no image folder; drop --images")
+    else:
+        from ..data.loader import load_scene
+        scene = load_scene(scene_arg, images=images, downscale=downscale, seed=seed)
+    if warn:
+        print_scene_warnings(scene)
+    return scene
+
+
+def scene_warnings(scene):
+    """The loader's warnings as a JSON-ready list."""
+    return [str(w) for w in getattr(scene, "warnings", None) or ()]
