@@ -58,3 +58,16 @@ def f32_exact(model, cam):
     c = Camera(cam.width, cam.height, float(np.float32(cam.fx)), float(np.float32(cam.fy)),
                float(np.float32(cam.cx)), float(np.float32(cam.cy)), r(cam.world_to_camera))
     return m, c
+
+
+def submit(ctx, record):
+    """Record with ``record(encoder)`` and submit (one kernel's dispatch in a test)."""
+    enc = ctx.device.create_command_encoder()
+    record(enc)
+    ctx.queue.submit([enc.finish()])
+
+
+def rel_error(a, b):
+    """max |a - b| relative to max |b|."""
+    b = np.asarray(b, np.float64)
+    return float(np.abs(np.asarray(a, np.float64) - b).max() / max(np.abs(b).max(), 1e-300))

@@ -12,6 +12,7 @@ from scenes import f32_exact, random_scene
 
 from tsplus_wgpu.kernels.project import frame_params
 from tsplus_wgpu.kernels.backward import NSTAT, BackwardPrepare, ProjectBackward, RasterizeBackward, VertexBackward
+from scenes import submit as run
 # (the package's attribute ``backward`` is the whole-backward twin function, so the module by name)
 twin = importlib.import_module("tsplus_wgpu.reference.backward")
 
@@ -43,12 +44,6 @@ def forward_data(renderer, case):
             tris=c.read(b["tris"], np.float32, 24 * m), ranges=res.tile_ranges(), pair_tris=res.pairs()[1],
             pixel_rects=c.read(b["pixel_rects"], np.int32, 4 * m), colors=c.read(b["colors"], np.float32, 4 * n))
     return _FORWARD[case]
-
-
-def run(ctx, record):
-    enc = ctx.device.create_command_encoder()
-    record(enc)
-    ctx.queue.submit([enc.finish()])
 
 
 def assert_scaled(got, want, rtol, what):

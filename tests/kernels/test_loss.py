@@ -7,20 +7,9 @@ import pytest
 from tsplus_wgpu.kernels.loss import (DownsampleArea, DownsampleAreaT, PackVOut, SsimBlurH, SsimGradH, SsimGradV,
                                       SsimLoss, SsimReduce)
 import tsplus_wgpu.reference.loss as twin
+from scenes import submit as _run, rel_error as _rel
 
 SIZES = [(1, 1), (5, 7), (23, 29), (40, 70)]   # (H, W); 23 x 29 and 40 x 70 span several workgroups
-
-
-def _run(ctx, record):
-    enc = ctx.device.create_command_encoder()
-    record(enc)
-    ctx.queue.submit([enc.finish()])
-
-
-def _rel(a, b):
-    """max |a - b| relative to max |b|."""
-    b = np.asarray(b, np.float64)
-    return float(np.abs(np.asarray(a, np.float64) - b).max() / max(np.abs(b).max(), 1e-300))
 
 
 def _images(shape, seed=2):

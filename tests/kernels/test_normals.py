@@ -7,19 +7,9 @@ from scenes import f32_exact, random_scene
 
 from tsplus_wgpu.kernels.normals import NormalAccumulate, NormalBackward, NormalModel
 import tsplus_wgpu.reference.normals as twin
+from scenes import submit as _run, rel_error as _rel
 
 W = H = 32
-
-
-def _run(ctx, record):
-    enc = ctx.device.create_command_encoder()
-    record(enc)
-    ctx.queue.submit([enc.finish()])
-
-
-def _rel(a, b):
-    b = np.asarray(b, np.float64)
-    return float(np.abs(np.asarray(a, np.float64) - b).max() / max(np.abs(b).max(), 1e-300))
 
 
 def _scene(seed, ties=False):

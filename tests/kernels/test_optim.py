@@ -7,12 +7,7 @@ import pytest
 from tsplus_wgpu.gpu.stage import Scratch
 from tsplus_wgpu.kernels.optim import Adam, OpacityReg, OpacityRegGradient, TrainActivate, TrainGrads
 import tsplus_wgpu.reference.optim as twin
-
-
-def _run(ctx, record):
-    enc = ctx.device.create_command_encoder()
-    record(enc)
-    ctx.queue.submit([enc.finish()])
+from scenes import submit as _run
 
 
 @pytest.mark.parametrize("n,k", [(1, 1), (300, 4), (777, 16)])

@@ -8,23 +8,9 @@ from scenes import f32_exact, random_scene
 from tsplus_wgpu import TriangleModel
 from tsplus_wgpu.kernels.project import ProjectTriangles, ShToColor, frame_params
 from tsplus_wgpu.reference.project import TRI2D, project_triangles, projection, sh_to_color
+from scenes import submit as run
 
 F32 = lambda a: np.asarray(a, np.float64).astype(np.float32)
-
-
-def run(ctx, record):
-    enc = ctx.device.create_command_encoder()
-    record(enc)
-    ctx.queue.submit([enc.finish()])
-
-
-@pytest.fixture(params=[None, 2], ids=["grid-1d", "grid-2d"])
-def max_dim(request, ctx, monkeypatch):
-    """Also run with at most 2 workgroups per dimension: the 2-D grid that more than 65535
-    workgroups take (and its overshoot workgroups), at a size lavapipe runs quickly."""
-    if request.param is not None:
-        monkeypatch.setitem(ctx.limits, "max-compute-workgroups-per-dimension", request.param)
-    return request.param
 
 
 def gpu_sh_to_color(ctx, positions, sh, cam):

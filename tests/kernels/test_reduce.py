@@ -9,14 +9,9 @@ import pytest
 from tsplus_wgpu.kernels.reduce import MaxReduce, SegmentDown, SegmentSum, SegmentUp
 from tsplus_wgpu.gpu import Scratch
 from tsplus_wgpu.reference import reduce as twin
+from scenes import submit as _run
 
 CHUNK = twin.CHUNK
-
-
-def _run(ctx, record):
-    enc = ctx.device.create_command_encoder()
-    record(enc)
-    ctx.queue.submit([enc.finish()])
 
 
 def _segments(seed, n, width, num_keys, run=None):

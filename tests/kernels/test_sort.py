@@ -7,12 +7,7 @@ import pytest
 from tsplus_wgpu.gpu.stage import Scratch
 from tsplus_wgpu.kernels.sort import RadixCount, RadixScatter, RadixSort, ScanAdd, ScanBlock, scan_numpy
 from tsplus_wgpu.reference import sort as twin
-
-
-def run(ctx, record):
-    enc = ctx.device.create_command_encoder()
-    record(enc)
-    ctx.queue.submit([enc.finish()])
+from scenes import submit as run
 
 
 def random_u32(rng, n, high=2**32):
