@@ -4,6 +4,7 @@ drift apart. Kernel K lives in ``shaders/<group>/K.wgsl``; names are unique acro
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -194,6 +195,7 @@ def reflect_workgroup_size(code, known):
     return tuple(dims + [1] * (3 - len(dims)))
 
 
+@functools.lru_cache(maxsize=None)        # shader files do not change while we run: parse each once
 def constant(name, kernel="frame"):
     """A WGSL constant as Python reads it: from ``shaders/common/<kernel>.wgsl`` when such a
     file exists, else from kernel ``kernel`` (with its imports)."""
