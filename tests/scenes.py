@@ -71,3 +71,13 @@ def rel_error(a, b):
     """max |a - b| relative to max |b|."""
     b = np.asarray(b, np.float64)
     return float(np.abs(np.asarray(a, np.float64) - b).max() / max(np.abs(b).max(), 1e-300))
+
+
+def similar_scene(scene, scale, shift):
+    """``scene`` in another world: every length multiplied by ``scale``, then shifted by ``shift``
+    (cameras, points, ground-truth mesh, depth maps; the images are the same). Returns
+    ``(copy, sim)`` with ``sim`` the :class:`WorldFrame` whose ``to_frame`` maps the scene's world
+    points to the copy's."""
+    from tsplus_wgpu.data import WorldFrame
+    sim = WorldFrame(scale, tuple(-np.asarray(shift, np.float64) / scale))
+    return scene.in_frame(sim), sim

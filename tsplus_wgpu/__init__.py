@@ -30,7 +30,7 @@ __version__ = "0.1.0"
 _LAZY = {
     "Trainer": ".train.trainer", "TrainConfig": ".train.trainer",
     "Scene": ".data", "SceneError": ".data", "load_scene": ".data", "load_procedural": ".data",
-    "load_scene_arg": ".data", "demo_model": ".data",
+    "load_scene_arg": ".data", "demo_model": ".data", "WorldFrame": ".data",
     "export": ".io.export", "load_run": ".apps.runs", "read_mesh": ".io.export", "ExportError": ".io.export",
     "UserError": ".errors",
     "clip_from_camera": ".render.mesh_renderer", "load_wgsl": ".gpu.wgsl",

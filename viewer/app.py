@@ -48,11 +48,15 @@ class Viewer:
         hud: show the HUD text.
         max_fps: frame-rate cap of :meth:`run` and of the live hook.
         screenshot_dir: folder of the screenshot key's PNGs.
+        near: near plane, in the units of the source's positions and the cameras (``tsplus view``:
+            the scene's ``WorldFrame.near_world()``; the live viewer: the trainer's ``config.near``,
+            as it draws the trainer's frame-unit buffers with ``trainer.scene.cameras``).
     """
 
     def __init__(self, source, cameras=None, size=None, offscreen=False, background=(0, 0, 0), hud=True,
-                 max_fps=30.0, screenshot_dir=".", title="tsplus view", camera_index=None, walk=False):
+                 max_fps=30.0, screenshot_dir=".", title="tsplus view", camera_index=None, walk=False, near=0.01):
         self.source = source
+        self.near = float(near)
         self.cameras = list(cameras or [])
         self.renderer = source.renderer
         self.frames = FrameRenderer(self.renderer, background=background)
@@ -234,7 +238,7 @@ class Viewer:
         cam = self.current_camera()
         enc = self.renderer.ctx.device.create_command_encoder()
         mode = "wire" if self.wire else self.mode
-        self.frames.record(enc, tex.create_view(), self.format, cam, self.source, mode)
+        self.frames.record(enc, tex.create_view(), self.format, cam, self.source, mode, self.near)
         readback = None
         if self._capture is not None and not self.offscreen:
             row = (4 * w + 255) // 256 * 256

@@ -19,4 +19,8 @@ def test_mesh_and_trainer_renderer_agree_after_training(tmp_path):
     rep = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     mesh, splat = rep["mean_psnr"], rep["mean_splat_psnr"]
     assert mesh > 15.0 and splat > 15.0          # a real reconstruction, not two blank images
-    assert abs(mesh - splat) <= 0.2, (mesh, splat)
+    # the trainer composites triangles in centroid-depth order, the mesh renderer depth-tests per
+    # pixel: where the two orders differ the images differ. Issue 16 asks for the exported mesh
+    # within 0.5 dB of the trainer's render; with the background shell (large, far triangles)
+    # this run measures 0.34 dB (mesh 19.91, splat 19.58 at the shell's introduction), 0.2 before.
+    assert abs(mesh - splat) <= 0.5, (mesh, splat)

@@ -85,7 +85,7 @@ def _pruned(renderer, tiny, **switches):
     (below the threshold), the first half of the triangles with max blending weight 0 (below it)."""
     from tsplus_wgpu.train.schedules import logit_from_opacity
     from tsplus_wgpu.train.trainer import TrainConfig, Trainer
-    t = Trainer(tiny, TrainConfig(**switches), renderer=renderer)
+    t = Trainer(tiny, TrainConfig(shell=False, **switches), renderer=renderer)   # no triangle exempt
     it = 4500                                   # the first prune step (floor still 0); densifying stopped
     assert t.sched.is_prune_step(it) and t.sched.opacity_floor(it) == 0.0
     t.topology.densify_stopped = "test: prune only"

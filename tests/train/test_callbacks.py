@@ -85,3 +85,35 @@ def test_state_round_trip_and_pure_topology_ops(renderer, tiny):
         want = {tuple(0.5 * (arr[i] + arr[j])) for i, j in edges}
         assert {tuple(x) for x in getattr(d, key)[s.n:]} == want, key
     assert isinstance(d, VertexState) and d.max_weight.shape == (d.m,)
+
+
+def test_rate_estimate_reports_after_the_warm_up_and_after_the_first_prune(monkeypatch):
+    """tsplus train's estimate: the wall rate over 20 steps after 5 warm-up ones, of what is left
+    (of a resumed run too), and once more over the 20 steps after the first prune (the initial
+    mesh makes the first steps the slowest); nothing more, and no second line without topology."""
+    import time as clock
+    from types import SimpleNamespace
+
+    from tsplus_wgpu.train.callbacks import RateEstimate, duration_text
+    from tsplus_wgpu.train.schedules import Schedule
+    now = [0.0]
+    monkeypatch.setattr(clock, "perf_counter", lambda: now[0])
+    sched = Schedule(total=3000, quick=True)          # prunes at 450, 500, ...
+    for first, topology, said in (
+            (1, True, ["estimate: 2,975 iterations left at 1.0 it/s -> about 50 min (measured over steps 6-25)",
+                       "estimate after the first prune: 2,530 iterations left at 4.0 it/s -> about 11 min "
+                       "(measured over steps 451-470)"]),
+            (1001, True, ["estimate: 1,975 iterations left at 1.0 it/s -> about 33 min (measured over steps "
+                          "1006-1025)", "estimate after the first prune: 1,930 iterations left at 4.0 it/s -> about "
+                          "8 min (measured over steps 1051-1070)"]),
+            (1, False, ["estimate: 2,975 iterations left at 1.0 it/s -> about 50 min (measured over steps 6-25)"])):
+        trainer = SimpleNamespace(config=SimpleNamespace(iterations=3000, topology=topology), sched=sched)
+        lines = []
+        cb = RateEstimate(report=lines.append)
+        pruned = False
+        for it in range(first, first + 1200):
+            now[0] += 3.0 if it - first < 5 else (0.25 if pruned else 1.0)     # slow warm-up steps are not counted
+            cb.after_step(trainer, it, {})
+            pruned = pruned or (it - first >= 25 and sched.is_prune_step(it))
+        assert lines == said
+    assert [duration_text(s) for s in (42, 900, 4 * 3600, 3 * 86400)] == ["42 s", "15 min", "4.0 h", "3.0 days"]

@@ -30,7 +30,8 @@ def test_every_flag_comes_from_a_field_and_shows_its_default():
     names = {f.name: f for f in fields(TrainConfig)}
     opts = cli_options()
     assert {o[0] for o in opts} == {"iterations", "indoor", "seed", "log_every", "checkpoint_every", "topology",
-                                    "max_vertices", "densify_stop_rel", "normals"}
+                                    "max_vertices", "vertex_budget", "densify_stop_rel", "shell", "init_max_edge",
+                                    "normals"}
     for name, flag, text, _ in opts:
         f = names[name]
         if f.default is not None and not f.metadata["argparse"].get("action"):
@@ -48,7 +49,8 @@ def test_defaults_of_the_library_and_the_command_agree():
     assert (quick.iterations, quick.log_every, quick.checkpoint_every) == (3000, 25, 1000)
     assert paper.background == SCENE.background and paper.topology and quick.topology
     lib = asdict(TrainConfig())
-    for key in ("log_every", "checkpoint_every", "iterations", "seed", "max_vertices", "densify_stop_rel"):
+    for key in ("log_every", "checkpoint_every", "iterations", "seed", "max_vertices", "vertex_budget",
+                "densify_stop_rel"):
         assert getattr(paper, key) == lib[key], key
     assert asdict(TrainConfig.preset(quick=True)) == {**lib, **preset_defaults(True)}
     assert preset_defaults(True) == dict(quick=True, iterations=3000, log_every=25)
@@ -71,7 +73,8 @@ def test_flags_override_the_config_file_which_overrides_the_preset(tmp_path):
 # ------------------------------------------------------------------ validation (issue 15)
 
 @pytest.mark.parametrize("key, value", [
-    ("max_vertices", -5), ("log_every", -1), ("densify_stop_rel", math.nan), ("densify_stop_rel", 1.5),
+    ("max_vertices", -5), ("vertex_budget", -0.5), ("vertex_budget", math.inf), ("vertex_budget", "2"),
+    ("vertex_budget", True), ("log_every", -1), ("densify_stop_rel", math.nan), ("densify_stop_rel", 1.5),
     ("background", [2, 0, 0]), ("background", [0.5, 0.5]), ("background", "white"), ("seed", 1.5), ("seed", -1),
     ("iterations", "ten"), ("iterations", 0), ("iterations", 10**12), ("iterations", True), ("quick", "yes"),
     ("indoor", 1), ("sh_degree", 4), ("near", 0.0), ("near", math.inf), ("checkpoint_every", -2),
@@ -112,6 +115,8 @@ def _flag_error(*argv):
 
 @pytest.mark.parametrize("argv, words", [
     (("--max-vertices", "-5"), ("--max-vertices:", "got -5", "in [0, 2147483647]")),
+    (("--vertex-budget", "-1"), ("--vertex-budget:", "finite number >= 0", "got -1.0")),
+    (("--vertex-budget", "nan"), ("--vertex-budget:", "finite number >= 0", "nan")),
     (("--log-every", "-1"), ("--log-every:", ">= 0", "got -1")),
     (("--densify-stop", "nan"), ("--densify-stop:", "finite", "[0, 1]", "nan")),
     (("--iterations", str(10**12)), ("--iterations:", str(MAX_ITERATIONS))),

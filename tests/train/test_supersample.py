@@ -40,7 +40,7 @@ def test_trainer_step_supersampled_matches_host_chain(renderer):
     t.iteration = 10                       # quick 12: s = 2 from 8, s = 4 from 10
     assert t.sched.supersample(11) == 4
     view = t.view_of(11)
-    cam = scene.cameras[view]
+    cam = t.scene.cameras[view]            # the trainer's frame, as its device model
     fine = renderer.forward(t.model, supersampled_camera(cam, 4), t.sched.sigma(11), cfg.background, cfg.near).image
     stats = t.step(read_stats=True)
     assert stats["supersample"] == 4
@@ -53,8 +53,8 @@ def test_trainer_step_supersampled_matches_host_chain(renderer):
     from tsplus_wgpu.train.trainer import psnr
     assert abs(stats["psnr"] - psnr(ds, scene.images[view])) < 1e-3
     # evaluation renders at s = 4 (fits easily) and is the block mean of the 4x render
-    img = t.render(t.model, scene.cameras[0], 0.5, supersample=4)
-    big = renderer.forward(t.model, supersampled_camera(scene.cameras[0], 4), 0.5, cfg.background, cfg.near).image
+    img = t.render(t.model, t.scene.cameras[0], 0.5, supersample=4)
+    big = renderer.forward(t.model, supersampled_camera(t.scene.cameras[0], 4), 0.5, cfg.background, cfg.near).image
     np.testing.assert_allclose(img, downsample_area(big, 4), atol=1e-6)
     assert t.fit_supersample(cam, 4) == 4
     assert t.fit_supersample(Camera(4000, 3000, 1.0, 1.0, 0.0, 0.0, np.eye(4)), 4) == 1   # 16 B x 192M: too big

@@ -69,7 +69,8 @@ def test_offscreen_frame_equals_mesh_renderer(renderer):
 
 def test_live_trainer_buffers_drawn_without_copy(renderer):
     """TrainerSource draws the trainer's own buffers (positions / SH rows of [N, 16, 3] /
-    triangles): the frame equals the mesh renderer's image of the read-back DC model."""
+    triangles), in the trainer's normalised frame, with its frame cameras (``t.scene.cameras``):
+    the frame equals the mesh renderer's image of the read-back DC model mapped into that frame."""
     from tsplus_wgpu.data import load_procedural
     from tsplus_wgpu.train.trainer import TrainConfig, Trainer
     scene = load_procedural("tiny", seed=0)
@@ -77,11 +78,12 @@ def test_live_trainer_buffers_drawn_without_copy(renderer):
     t.train(until=3, progress=False)
     src = v.TrainerSource(t)
     assert src.buffers["positions"] is t.model.buffers["positions"] and src.sh_size == t.k > 1
-    viewer = v.Viewer(src, scene.cameras, offscreen=True, hud=False, background=(0.0, 0.0, 0.0), camera_index=2)
+    viewer = v.Viewer(src, t.scene.cameras, offscreen=True, hud=False, background=(0.0, 0.0, 0.0), camera_index=2,
+                      near=t.config.near)
     frame = viewer.frame()
-    cur = t.current_model()
-    dc = TriangleModel(cur.positions, cur.triangles, cur.sh[:, :1], np.ones(cur.num_vertices))
-    ref = MeshRenderer(renderer.ctx).render(dc, scene.cameras[2]).image
+    cur = t.current_model()                  # world units
+    dc = TriangleModel(t.frame.to_frame(cur.positions), cur.triangles, cur.sh[:, :1], np.ones(cur.num_vertices))
+    ref = MeshRenderer(renderer.ctx).render(dc, t.scene.cameras[2], near=t.config.near).image
     _assert_same(frame, ref)
     # the hook draws between steps at the capped rate, and a closed viewer stops training when asked
     viewer.max_fps = 1000.0

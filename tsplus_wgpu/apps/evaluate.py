@@ -33,7 +33,7 @@ def heat(err, vmax=None):
 
 
 def evaluate_mesh(model, scene, views, mesh_renderer, supersample=4, splat_renderer=None, out=None, images=4,
-                  background=(0.0, 0.0, 0.0), interpolation="perspective"):
+                  background=(0.0, 0.0, 0.0), interpolation="perspective", near=None):
     """Per-view PSNR/SSIM of ``model`` (opaque, vertex colours) drawn by the mesh renderer,
     with the splatting renderer's PSNR at sigma 1e-4 / opacity 1 beside it when given, and the
     **coverage**: the fraction of the view's pixels the mesh draws (supersamples counted, so an
@@ -41,20 +41,22 @@ def evaluate_mesh(model, scene, views, mesh_renderer, supersample=4, splat_rende
     construction where a render on black and one on white differ (``tests/apps/test_eval.py``
     checks that identity).
     Writes ``view_XXX.png`` (ground truth | render | error heat map) for the first ``images``
-    views to ``out``. Returns a list of per-view dicts."""
+    views to ``out``. ``near``: near plane in world units (default: the training default relative
+    to the scene's camera radius, ``scene.frame().near_world()``). Returns a list of per-view dicts."""
+    near = scene.frame().near_world() if near is None else near
     rows = []
     opaque = TriangleModel(model.positions, model.triangles, model.sh, np.ones(model.num_vertices))
     for n, v in enumerate(views):
         cam, gt = scene.cameras[v], scene.images[v]
         t0 = time.perf_counter()
-        res = mesh_renderer.render(model, cam, supersample=supersample, background=background,
+        res = mesh_renderer.render(model, cam, supersample=supersample, background=background, near=near,
                                    interpolation=interpolation)
         ms = 1e3 * (time.perf_counter() - t0)
         img = res.image
         row = dict(view=int(v), name=str(scene.image_names[v]) if scene.image_names else str(v),
                    psnr=psnr(img, gt), ssim=ssim(img, gt), coverage=float(np.mean(res.coverage)), render_ms=ms)
         if splat_renderer is not None and model.num_triangles:
-            simg = splat_renderer.forward(opaque, cam, SIGMA_OPAQUE, background=background).image
+            simg = splat_renderer.forward(opaque, cam, SIGMA_OPAQUE, background=background, near=near).image
             row["splat_psnr"] = psnr(simg, gt)
         rows.append(row)
         if out is not None and n < images:
@@ -192,10 +194,12 @@ def normal_error_summary(model, scene, views, folder, renderer_or_ctx):
         print(f"warning: {w}")
     r = renderer_or_ctx if isinstance(renderer_or_ctx, Renderer) else Renderer(renderer_or_ctx)
     k = NormalLoss(r)
+    near = scene.frame().near_world()
     per = {}
     for v in views:
         if maps.maps[v] is not None:
-            per[int(v)] = normal_error(render_normals(r, model, scene.cameras[v], 1e-4, loss=k), *maps.maps[v])
+            per[int(v)] = normal_error(render_normals(r, model, scene.cameras[v], 1e-4, near, loss=k),
+                                       *maps.maps[v])
     if not per:
         print(f"normal error: no normal map in {folder} for the {len(views)} evaluated views")
         return dict(views=0)

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.frame import WorldFrame
 from ..errors import UserError
 from ..types import TriangleModel
 
@@ -63,7 +64,7 @@ def opaque_model(model: TriangleModel) -> TriangleModel:
     return TriangleModel(model.positions, model.triangles, model.sh[:, :1], np.ones(model.num_vertices))
 
 
-def triangle_votes(model: TriangleModel, cameras, masks, renderer=None, sigma=ID_SIGMA, near=0.01):
+def triangle_votes(model: TriangleModel, cameras, masks, renderer=None, sigma=ID_SIGMA, near=None):
     """Per triangle, the number of views where it is under the mask and where it is visible.
 
     Args:
@@ -71,6 +72,8 @@ def triangle_votes(model: TriangleModel, cameras, masks, renderer=None, sigma=ID
         cameras: one :class:`Camera` per view.
         masks: per camera ``[H, W]`` bool (True = object) at the camera's size, or None to skip the view.
         renderer: a :class:`Renderer` (default: a new one).
+        near: near plane in world units (default: the training default relative to the cameras'
+            radius, :meth:`WorldFrame.near_world <tsplus_wgpu.data.frame.WorldFrame.near_world>`).
 
     Returns:
         ``(selected [M] int64, visible [M] int64, views list)``.
@@ -79,6 +82,7 @@ def triangle_votes(model: TriangleModel, cameras, masks, renderer=None, sigma=ID
     if len(masks) != len(cameras):
         raise ValueError(f"masks: expected one per camera ({len(cameras)}), got {len(masks)}")
     r = renderer or Renderer()
+    near = WorldFrame.for_cameras(cameras).near_world() if near is None else near
     m = model.num_triangles
     from ..render.device_model import DeviceModel
     opaque = DeviceModel.from_model(r, opaque_model(model))      # uploaded once for every view
@@ -99,7 +103,7 @@ def triangle_votes(model: TriangleModel, cameras, masks, renderer=None, sigma=ID
     return selected, visible, views
 
 
-def select_triangles(model: TriangleModel, cameras, masks, vote=0.5, renderer=None, sigma=ID_SIGMA, near=0.01):
+def select_triangles(model: TriangleModel, cameras, masks, vote=0.5, renderer=None, sigma=ID_SIGMA, near=None):
     """Triangles of ``model`` under the masks: kept when selected in at least ``vote`` (0 < vote
     <= 1) of the views that see them, and in one view at least. Returns a :class:`Selection`."""
     vote = float(vote)

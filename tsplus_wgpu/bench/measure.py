@@ -167,15 +167,15 @@ def _kernel_rates(name, ms, flops, work, peak):
                 fraction_max=max(rate) / p if rate else None)
 
 
-def measure_blend(renderer, trainer, scene, repeats, peak):
+def measure_blend(renderer, trainer, repeats, peak):
     """The forward and backward blend kernels on ``trainer``'s model (first training view, its
-    current sigma), timed by timestamp queries (host timing otherwise), with ``peak()`` (a peak
+    current sigma, in the trainer's frame), timed by timestamp queries (host timing otherwise), with ``peak()`` (a peak
     FMA record, :func:`peak_record`) measured just before: GFLOP/s of the algorithm's count and
     the fraction of peak."""
     from ..render.backward import backward
     t = trainer
     view = t.train_views[0]
-    cam = scene.cameras[view]
+    cam = t.scene.cameras[view]
     sigma = t.sched.sigma(t.iteration)
     bg, near = t.config.background, t.config.near
     vi = np.random.default_rng(1).normal(size=(cam.height, cam.width, 3)).astype(np.float32)

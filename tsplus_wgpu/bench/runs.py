@@ -218,7 +218,7 @@ class Bench:
         if mon.rows:
             rec["stages"] = summarize_stages(mon.rows, int(iterations), t.profile_method)
         if blend:
-            rec["blend"] = measure_blend(self.renderer, t, scene, plan.blend_repeats,
+            rec["blend"] = measure_blend(self.renderer, t, plan.blend_repeats,
                                          lambda: self.peak(plan.peak_repeats))
             rec["run_seconds"] = time.perf_counter() - t_run
         return rec

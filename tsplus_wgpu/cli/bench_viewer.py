@@ -93,8 +93,8 @@ def _train_rates(v, renderer, args, windowed):
     cfg = TrainConfig(iterations=100000, quick=True, seed=0, log_every=0, checkpoint_every=0, topology=False)
     trainer = Trainer(scene, cfg, renderer=renderer)
     trainer.train(until=5, progress=False)      # warm-up: pipelines
-    live = v.Viewer(v.TrainerSource(trainer), cameras=scene.cameras, offscreen=not windowed,
-                    background=cfg.background, max_fps=args.view_fps, camera_index=0)
+    live = v.Viewer(v.TrainerSource(trainer), cameras=trainer.scene.cameras, offscreen=not windowed,
+                    background=cfg.background, max_fps=args.view_fps, camera_index=0, near=cfg.near)
     hook = live.training_hook()
     plain, viewed, frames = [], [], []
     for _ in range(args.repeats):

@@ -67,7 +67,8 @@ def run(args):
                         f"views, e.g. {example}); nothing to select")
     masks = [None if p is None else read_mask(p, cam.width, cam.height) for p, cam in zip(paths, scene.cameras)]
     renderer = Renderer(args.adapter)
-    sel = select_triangles(model, scene.cameras, masks, vote=args.vote, renderer=renderer)
+    sel = select_triangles(model, scene.cameras, masks, vote=args.vote, renderer=renderer,
+                           near=scene.frame().near_world())
     obj, rest = split_model(model, sel.keep)
     print(f"adapter: {renderer.adapter_name}")
     print(f"mesh: {model.num_vertices} vertices / {model.num_triangles} triangles ({info.get('from')}); scene "

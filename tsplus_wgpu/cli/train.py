@@ -4,7 +4,14 @@ opaque mesh, held-out metrics, test renders, the log and a resumable checkpoint.
 The options that set a :class:`~tsplus_wgpu.train.config.TrainConfig` field come from that
 field's metadata (:func:`~tsplus_wgpu.train.config.cli_options`): flag, help and default are
 declared once, there. Precedence: a flag on the command line, then the ``--config`` file, then
-the preset's default (:func:`~tsplus_wgpu.train.config.preset_defaults`), then the field's."""
+the preset's default (:func:`~tsplus_wgpu.train.config.preset_defaults`), then the field's.
+
+The preset and ``--downscale``, where neither the command line nor the ``--config`` file gives
+them, come from :func:`plan_run`: a resumed run's own; on a CPU adapter (lavapipe, llvmpipe) the
+quick preset at a downscale that keeps a training image within :data:`CPU_MAX_PIXELS`, so that a
+first ``tsplus train SCENE --out DIR`` takes minutes, not days; else the paper preset at full
+size. The plan is printed before training, and after the first timed steps a one-line estimate
+of the run's duration (:class:`~tsplus_wgpu.train.callbacks.RateEstimate`)."""
 
 from __future__ import annotations
 
@@ -13,8 +20,9 @@ import json
 import os
 import sys
 import tempfile
+import math
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +32,16 @@ from ..io.atomic import describe, remove_orphans, write_bytes, write_error, writ
 from ..train.config import TrainConfig, check_settings, cli_options, preset_defaults
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
-_FROM_FLAG = {"topology": lambda v: v == "on", "normals": lambda v: str(Path(v).resolve())}
+_FROM_FLAG = {"topology": lambda v: v == "on", "shell": lambda v: v == "on", "normals": lambda v: str(Path(v).resolve())}
+
+#: the most pixels of a training image when ``tsplus train`` picks the downscale for a CPU adapter.
+#: Measured: the cup at 200x150 (30,000 pixels), quick preset, 3000 iterations, trained in 13 min
+#: on 2 cores with lavapipe (3.0-3.8 it/s); the paper's run at full size takes days there. 2**15
+#: keeps the common 16:9 and 4:3 captures at a quarter or an eighth of their size (960x540 -> 240x135,
+#: 1080x1920 -> 135x240, 32,400 pixels each).
+CPU_MAX_PIXELS = 2**15
+#: that measurement as seconds per iteration and training pixel: the plan's rough duration
+CPU_SECONDS_PER_PIXEL = 13 * 60 / (3000 * 30_000)
 
 
 def add_parser(sub):
@@ -43,10 +60,12 @@ def add_parser(sub):
                         "max_vertices, densify_stop_rel, ...); flags given on the command line override it")
     p.add_argument("--preset", choices=["paper", "quick"], default=None,
                    help="paper: method.md's schedules as they are (30k-iteration constants); quick: every schedule "
-                        "scaled to --iterations (default paper)")
+                        "scaled to --iterations (default paper; on a CPU adapter quick, with --resume the run's own)")
     for name, flag, text, kwargs in cli_options():       # one option per TrainConfig field with a flag
         p.add_argument(flag, dest=name, default=None, help=text, **kwargs)
-    p.add_argument("--downscale", type=int, default=1, help="shrink the images by this factor (default 1)")
+    p.add_argument("--downscale", type=int, default=None,
+                   help=f"shrink the images by this factor (default 1; on a CPU adapter the smallest that leaves a "
+                        f"training image at most {CPU_MAX_PIXELS:,} pixels; with --resume the run's own)")
     from .scenes import add_images_arg
     add_images_arg(p)
     p.add_argument("--resume", action="store_true",
@@ -105,7 +124,7 @@ def resolve_settings(args):
     """The config keys of this invocation before the scene is known (flag > ``--config`` file
     > preset default; ``background`` and ``extra`` are added by :func:`config_for_scene`).
     Sets ``args.seed`` (the scene loader's seed) to the resolved seed."""
-    if args.downscale < 1:
+    if args.downscale is not None and args.downscale < 1:
         raise ValueError(f"--downscale: expected an integer >= 1, got {args.downscale}")
     file_cfg = load_config_file(args.config) if args.config else {}
     quick = args.preset == "quick" if args.preset is not None else bool(file_cfg.get("quick", False))
@@ -126,6 +145,86 @@ def resolve_settings(args):
         raise ValueError(f"--checkpoint-every: expected >= 0, got {settings['checkpoint_every']}")
     args.seed = settings.get("seed", defaults.seed)
     return settings
+
+
+def cpu_downscale(width, height, max_pixels=CPU_MAX_PIXELS):
+    """The smallest integer factor d >= 1 whose ``--downscale d`` leaves a ``width`` x ``height``
+    image at most ``max_pixels`` pixels (its sides rounded as the loader rounds them), short of
+    one that would leave a side under the loader's minimum."""
+    from ..data.plausible import MIN_TRAIN_SIDE
+    from ..data.scene import downscaled_size
+    d = 1
+    while (math.prod(downscaled_size(width, height, d)) > max_pixels
+           and min(downscaled_size(width, height, d + 1)) >= MIN_TRAIN_SIDE):
+        d += 1
+    return d
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What a run trains with where the command line leaves it open: ``preset`` (``"paper"``,
+    ``"quick"``, or None: the ``--config`` file's), ``downscale``, and where each came from
+    (``preset_from``, ``downscale_from``: ``"--preset"`` / ``"--downscale"``, ``"--config"``,
+    ``"checkpoint"``, ``"CPU adapter"`` or ``"default"``)."""
+
+    preset: str | None
+    downscale: int
+    preset_from: str
+    downscale_from: str
+
+
+def plan_run(args, is_cpu, image_sizes, checkpoint=None):
+    """The run's preset and downscale (:class:`Plan`). ``--preset`` and ``--downscale`` stand as
+    given, and a ``--config`` file that sets ``quick`` or ``iterations`` chooses the preset. What
+    is left open: resuming (``checkpoint``: the checkpoint's config), the run's own, so a plain
+    ``--resume`` continues its run; on a CPU adapter (``is_cpu``), the quick preset and
+    :func:`cpu_downscale` of the largest image (``image_sizes()``: every image's ``(width,
+    height)`` before any downscale; not asked for the procedural scene, whose sizes are fixed);
+    else the paper preset at full size."""
+    from .scenes import is_procedural
+    preset, preset_from = args.preset, "--preset"
+    if preset is None:
+        if {"quick", "iterations"} & set(load_config_file(args.config) if args.config else {}):
+            preset_from = "--config"
+        elif checkpoint is not None:
+            preset, preset_from = ("quick" if checkpoint.get("quick") else "paper"), "checkpoint"
+        else:
+            preset, preset_from = ("quick", "CPU adapter") if is_cpu else ("paper", "default")
+    downscale, downscale_from = args.downscale, "--downscale"
+    if downscale is None:
+        if checkpoint is not None:
+            downscale, downscale_from = int((checkpoint.get("extra") or {}).get("downscale", 1)), "checkpoint"
+        elif is_cpu and not is_procedural(args.scene):
+            downscale = max(cpu_downscale(w, h) for w, h in set(image_sizes()))
+            downscale_from = "CPU adapter"
+        else:
+            downscale, downscale_from = 1, "default"
+    return Plan(preset, downscale, preset_from, downscale_from)
+
+
+#: how the plan line names where a choice came from (:attr:`Plan.preset_from`, ``downscale_from``)
+_FROM_TEXT = {"--preset": "as given", "--downscale": "as given", "--config": "from --config",
+              "checkpoint": "the run's own", "CPU adapter": "for the CPU adapter", "default": "default"}
+
+
+def plan_lines(plan, cfg, scene):
+    """What ``tsplus train`` prints about its plan: the preset, the iterations and the training
+    size, each with where it came from; for a CPU adapter's choices, a line with the rough
+    duration (:data:`CPU_SECONDS_PER_PIXEL`) and how to ask for the paper's run instead."""
+    cam = scene.cameras[scene.train_indices[0]]
+    size = f"{cam.width}x{cam.height}"
+    lines = [f"plan: {'quick' if cfg.quick else 'paper'} preset ({_FROM_TEXT[plan.preset_from]}), "
+             f"{cfg.iterations:,} iterations at {size} (--downscale {plan.downscale}, "
+             f"{_FROM_TEXT[plan.downscale_from]})"]
+    cpu = [(chose, undo) for chose, undo, by in (("quick preset", "--preset paper", plan.preset_from),
+                                                 (f"--downscale {plan.downscale} ({size})", "--downscale 1",
+                                                  plan.downscale_from)) if by == "CPU adapter"]
+    if cpu:
+        from ..train.callbacks import duration_text
+        seconds = CPU_SECONDS_PER_PIXEL * cfg.iterations * cam.width * cam.height
+        lines.append(f"CPU adapter: {', '.join(c for c, _ in cpu)} so the run takes about {duration_text(seconds)} on "
+                     f"2 cores; pass {' '.join(u for _, u in cpu)} for the paper's run")
+    return lines
 
 
 def config_for_scene(args, settings, scene):
@@ -184,6 +283,8 @@ def _output_folder(args):
     loaded = read_checkpoint(ckpt)
     saved = (loaded[1]["config"].get("extra") or {}).get("data")
     current = dict(scene=scene_id(args.scene), downscale=args.downscale, images=getattr(args, "images", None))
+    if args.downscale is None:          # not given: the run's own (plan_run)
+        del current["downscale"]
     warning = check_fingerprint(ckpt, saved, current, keys=list(current))
     if warning:
         print(f"warning: {warning}", file=sys.stderr)
@@ -206,9 +307,10 @@ def _prepare(out: Path, fresh):
         raise write_error(out, exc) from None
 
 
-def _start(args, cfg, scene, out, ckpt, t0, loaded=None):
-    """The trainer (new or resumed from ``loaded``, the checkpoint's ``(arrays, meta)``) with
-    config.json written and the start printed."""
+def _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded=None):
+    """The trainer on ``ctx`` (new or resumed from ``loaded``, the checkpoint's ``(arrays,
+    meta)``) with config.json written and the start printed: the adapter, the ``plan``, the
+    scene and the vertex cap."""
     from ..render.renderer import Renderer
     from ..train.trainer import Trainer
     if loaded is not None:       # the whole data fingerprint, now that the scene is loaded
@@ -218,7 +320,7 @@ def _start(args, cfg, scene, out, ckpt, t0, loaded=None):
     if cfg.normals:
         from ..data.normals import load_normal_maps
         normal_maps = load_normal_maps(scene, cfg.normals)
-    renderer = Renderer(args.adapter)
+    renderer = Renderer(ctx)
     if loaded is not None:
         trainer = Trainer.resume(ckpt, scene, cfg, renderer=renderer, normals=normal_maps, loaded=loaded)
     else:
@@ -226,9 +328,13 @@ def _start(args, cfg, scene, out, ckpt, t0, loaded=None):
     _prepare(out, fresh=loaded is None)
     write_json(out / "config.json", dict(asdict(cfg), adapter=renderer.adapter_name))
     print(f"adapter: {renderer.adapter_name}")
+    for line in plan_lines(plan, cfg, scene):
+        print(line)
     print(f"scene: {args.scene} ({len(scene.train_indices)} training / {len(scene.test_indices)} held-out views, "
           f"{scene.cameras[0].width}x{scene.cameras[0].height}); model {trainer.n} vertices / {trainer.m} triangles; "
           f"from iteration {trainer.iteration} to {cfg.iterations} (loaded in {time.perf_counter() - t0:.1f}s)")
+    if cfg.topology:
+        print(f"vertex cap: {trainer.topology.cap.vertices:,} ({trainer.topology.cap.why})")
     if normal_maps is not None:
         from ..train.schedules import NORMAL_LOSS_AFTER
         print(f"{normal_maps.summary(len(scene.train_indices))}; normal loss weight "
@@ -266,20 +372,31 @@ def _finish(trainer, scene, out, ckpt, psnr0):
 
 
 def run(args):
+    from tqdm import tqdm
+
+    from ..data.loader import frame_sizes
+    from ..gpu.context import GpuContext
+    from ..train.callbacks import RateEstimate
     from ..train.loop import Interrupted
     from .scenes import load_cli_scene
-    settings = resolve_settings(args)
+    resolve_settings(args)                       # every flag and the --config file checked before any work
     out, ckpt, loaded = _output_folder(args)
     t0 = time.perf_counter()
+    ctx = GpuContext(args.adapter)
+    plan = plan_run(args, ctx.is_cpu, lambda: frame_sizes(args.scene, args.images),
+                    None if loaded is None else loaded[1]["config"])
+    args.preset, args.downscale = plan.preset, plan.downscale
+    settings = resolve_settings(args)
     scene = load_cli_scene(args.scene, args.downscale, args.seed, images=args.images)   # prints its warnings
     cfg = config_for_scene(args, settings, scene)
-    trainer = _start(args, cfg, scene, out, ckpt, t0, loaded)
+    trainer = _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded)
     del loaded
     from .view import attach_live_viewer
-    viewer = attach_live_viewer(trainer, args, scene)   # --view: the live window, drawn between steps
+    viewer = attach_live_viewer(trainer, args)   # --view: the live window, drawn between steps
     psnr0 = trainer.evaluate()[0] if trainer.iteration == 0 else None
     try:
-        trainer.train(out_dir=out, progress=not args.no_progress, checkpoint_at_end=False)
+        trainer.train(out_dir=out, progress=not args.no_progress, checkpoint_at_end=False,
+                      callbacks=[RateEstimate(report=tqdm.write)])     # one line, beside the progress bar
     except Interrupted as exc:
         import signal
         signum = exc.signum or signal.SIGINT

@@ -92,9 +92,11 @@ def parse_size(text):
         raise ValueError(f"--size: expected WxH (e.g. 800x600), got {text!r}") from None
 
 
-def attach_live_viewer(trainer, args, scene=None):
+def attach_live_viewer(trainer, args):
     """Open the live window for ``tsplus train --view`` and hook it into ``trainer``; prints
-    one line and returns None when no window can open (training goes on)."""
+    one line and returns None when no window can open (training goes on). The window draws the
+    trainer's own buffers, in its normalised frame: so it takes the trainer's frame cameras
+    (``trainer.scene.cameras``) and near plane."""
     if not getattr(args, "view", False):
         return None
     v = load_viewer()
@@ -102,9 +104,9 @@ def attach_live_viewer(trainer, args, scene=None):
     if why is None:
         try:
             source = v.TrainerSource(trainer)
-            viewer = v.Viewer(source, cameras=list(scene.cameras) if scene is not None else None,
-                              background=trainer.config.background, max_fps=args.view_fps,
-                              title="tsplus train (live)", camera_index=0 if scene is not None else None)
+            viewer = v.Viewer(source, cameras=list(trainer.scene.cameras), background=trainer.config.background,
+                              max_fps=args.view_fps, title="tsplus train (live)", camera_index=0,
+                              near=trainer.config.near)
         except v.NoDisplayError as exc:
             why = str(exc)
     if why is not None:
@@ -136,6 +138,7 @@ def _scene_cameras(args, info):
 def run(args):
     from ..render.renderer import Renderer
     from ..apps.runs import load_run
+    from ..data.frame import NEAR, WorldFrame
     from ..train.schedules import SIGMA_FINAL
     v = load_viewer()
     why = None if args.screenshot else v.display_problem()
@@ -151,6 +154,7 @@ def run(args):
         if not 0 <= args.camera < len(cameras):
             raise ValueError(f"--camera: expected 0..{len(cameras) - 1}, got {args.camera}")
     size = parse_size(args.size) if args.size else None
+    near = WorldFrame.for_cameras(cameras).near_world() if cameras else NEAR   # the mesh is in world units
     bg = info.get("background") or (0.0, 0.0, 0.0)
     renderer = Renderer(args.adapter)
     source = v.ModelSource(renderer, model, sigma=SIGMA_FINAL if args.sigma is None else args.sigma,
@@ -160,7 +164,7 @@ def run(args):
             c = cameras[args.camera]
             size = (c.width, c.height)
         viewer = v.Viewer(source, cameras, size=size, offscreen=True, background=bg, hud=args.hud,
-                          camera_index=args.camera, walk=args.walk)
+                          camera_index=args.camera, walk=args.walk, near=near)
         viewer.mode = "splat" if args.splat else "mesh"
         viewer.wire = args.wireframe
         if viewer.walking is not None:
@@ -176,7 +180,7 @@ def run(args):
         return 0
     try:
         viewer = v.Viewer(source, cameras, size=size, background=bg, max_fps=args.max_fps,
-                          camera_index=args.camera, title=f"tsplus view {args.path}", walk=args.walk)
+                          camera_index=args.camera, title=f"tsplus view {args.path}", walk=args.walk, near=near)
     except v.NoDisplayError as exc:     # glfw missing, or it cannot reach the display
         raise UserError(f"view: cannot open a window: {exc}; {v.NO_DISPLAY_HINT}") from None
     viewer.mode = "splat" if args.splat else "mesh"

@@ -12,7 +12,7 @@ import numpy as np
 from .errors import SceneError
 from .images import list_images
 from .plausible import check_train_size
-from .scene import Scene, load_frames, make_split, select_frames
+from .scene import Scene, downscaled_size, load_frames, make_split, select_frames
 
 FORMATS = ("colmap", "transforms", "nerf-synthetic", "llff", "photos", "procedural")
 
@@ -157,8 +157,8 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
     total = rest * (_folder_factor(image_dir) if image_dir is not None and images is None else 1.0)
     if chosen and downscale > 1:   # what the user asked, before reading any image
         c0 = chosen[0].camera
-        check_train_size(max(1, round(c0.width / downscale)), max(1, round(c0.height / downscale)),
-                         (c0.width, c0.height), downscale, chosen[0].source or str(chosen[0].path))
+        check_train_size(*downscaled_size(c0.width, c0.height, downscale), (c0.width, c0.height), downscale,
+                         chosen[0].source or str(chosen[0].path))
     cameras, imgs, kept, skipped = load_frames(chosen, rest, bg, on_bad_image, warnings, progress=progress)
     orig = [sel[k] for k in kept]
     train_set, test_set = set(train_all), set(test_all)
@@ -324,6 +324,19 @@ def _initial_points(points, cameras, imgs, specs, background, train_idx, bounds,
     if points == "frusta":
         warnings.append("initial points made from the camera frusta (as asked)")
     return pts, cols, "frusta"
+
+
+def frame_sizes(path, images=None) -> list:
+    """``(width, height)`` of every image of the scene at ``path`` before any ``downscale``,
+    without reading pixels (a folder of photos runs its SfM first, cached for the load): the
+    cameras' sizes, or with ``images`` (an image folder of the user's choice, which ``downscale``
+    shrinks further) the files' own. What plans a downscale (``tsplus train`` on a CPU)."""
+    from .images import read_image_size  # noqa: PLC0415
+    root = _scene_root(path)
+    _, specs, *_ = _read_format(root, images, 1.0, None, False, [])
+    if images is None:
+        return [(f.camera.width, f.camera.height) for f in specs]
+    return [read_image_size(f.path) for f in specs if Path(f.path).is_file()]
 
 
 def load_scene_arg(scene_arg, downscale=1, seed=0) -> Scene:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -11,6 +11,7 @@ import numpy as np
 
 from ..types import Camera
 from .errors import SceneError
+from .frame import WorldFrame
 from .images import composite, read_image_raw, resize_area
 from .plausible import check_train_size, check_translation
 
@@ -101,6 +102,20 @@ class Scene:
         c = np.stack([cam.center for cam in self.cameras])
         r = float(np.max(np.linalg.norm(c - c.mean(0), axis=1))) if len(c) > 1 else 0.0
         return 1.1 * r if r > 0 else 1.0
+
+    def frame(self) -> WorldFrame:
+        """The normalised frame training works in (:class:`~.frame.WorldFrame`), from every
+        camera, training and held-out, so that training and evaluation agree."""
+        return WorldFrame.for_cameras(self.cameras, self.points)
+
+    def in_frame(self, frame: WorldFrame) -> "Scene":
+        """This scene seen in ``frame``: a shallow copy whose cameras, points, ground-truth mesh
+        and depth maps are mapped into it (images, masks and everything else shared)."""
+        gt = self.gt_mesh
+        return replace(self, cameras=[frame.camera(c) for c in self.cameras],
+                       points=None if self.points is None else frame.to_frame(self.points),
+                       gt_mesh=None if gt is None else replace(gt, vertices=frame.to_frame(gt.vertices)),
+                       depths=None if self.depths is None else [np.float32(frame.scale) * d for d in self.depths])
 
     def summary(self) -> str:
         """Multi-line human-readable description (what ``tsplus inspect`` prints)."""
@@ -288,6 +303,12 @@ def load_frames(frames: list, downscale: float, background, on_bad_image: str, w
     return cameras, images, kept, skipped
 
 
+def downscaled_size(width: int, height: int, downscale: float) -> tuple:
+    """``(width, height)`` of an image shrunk by ``downscale``: each side divided and rounded
+    (at least 1 pixel). What ``--downscale`` gives, and what plans one (``tsplus train``)."""
+    return max(1, int(round(width / downscale))), max(1, int(round(height / downscale)))
+
+
 def prepare_frame(fr: FrameSpec, raw: np.ndarray, downscale: float, background):
     """The pinhole camera and float32 RGB image of frame ``fr`` from its decoded file ``raw``:
     intrinsics scaled to the file's size, undistorted, alpha composited, shrunk by ``downscale``."""
@@ -305,7 +326,7 @@ def prepare_frame(fr: FrameSpec, raw: np.ndarray, downscale: float, background):
         img, cam = fr.undistort(img, cam)
     img = composite(img, background)
     if downscale != 1:
-        nw, nh = max(1, int(round(cam.width / downscale))), max(1, int(round(cam.height / downscale)))
+        nw, nh = downscaled_size(cam.width, cam.height, downscale)
         check_train_size(nw, nh, (cam.width, cam.height), downscale, str(fr.path))
         img = resize_area(img, nw, nh)
         cam = cam.scaled(nw / cam.width) if (nw / cam.width) == (nh / cam.height) else Camera(

@@ -40,14 +40,17 @@ def to_uint8(colors) -> np.ndarray:
     return np.round(np.clip(np.asarray(colors, np.float64), 0.0, 1.0) * 255).astype(np.uint8)
 
 
-def bake_views(model: TriangleModel, scene, views=None, mesh_renderer=None, near=0.01, depth_tol=0.01):
+def bake_views(model: TriangleModel, scene, views=None, mesh_renderer=None, near=None, depth_tol=0.01):
     """Per-vertex colour averaged over the training views where the vertex is visible:
     each view is drawn by the :class:`~tsplus_wgpu.MeshRenderer` (its depth decides
     visibility: camera z within ``depth_tol`` relative of the surface at the vertex's pixel)
     and the photo is sampled at the vertex's projection. Vertices no view sees keep the
-    DC colour. Returns ``(colors [N, 3], views_seen [N])``."""
+    DC colour. ``near``: near plane in world units (default: the training default relative to
+    the scene's camera radius, ``scene.frame().near_world()``). Returns ``(colors [N, 3],
+    views_seen [N])``."""
     from ..render.mesh_renderer import MeshRenderer
     mr = mesh_renderer or MeshRenderer()
+    near = scene.frame().near_world() if near is None else near
     views = list(scene.train_indices or range(len(scene.cameras))) if views is None else list(views)
     base = dc_colors(model)
     acc = np.zeros_like(base)

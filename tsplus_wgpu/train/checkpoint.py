@@ -1,10 +1,22 @@
-"""Reading and checking trainer checkpoints (``checkpoint.npz``).
+"""Writing, reading and checking trainer checkpoints (``checkpoint.npz``).
 
 A checkpoint is an ``.npz`` of the trainer's arrays in the device layout
 (:meth:`~.trainer.Trainer.state_arrays`: ``positions``, ``sh_planar``, ``logits``, ``triangles``,
-``exp_avg_<p>`` / ``exp_avg_sq_<p>``), the topology's ``max_weight_acc`` and ``l1_ring``, and
-``meta`` (JSON bytes: ``version``, ``iteration``, ``elapsed``, ``topology``, ``config``,
-``adapter``). :func:`tsplus_wgpu.apps.runs.load_run` reads the same files.
+``exp_avg_<p>`` / ``exp_avg_sq_<p>``), the topology's ``max_weight_acc``, ``l1_ring`` and ``triangle_groups`` (int8 per triangle, the
+background shell's marked; absent when every triangle is ordinary), and
+``meta`` (JSON bytes: ``version``, ``iteration``, ``elapsed``, ``frame``, ``topology``,
+``config``, ``adapter``). :func:`tsplus_wgpu.apps.runs.load_run` reads the same files.
+
+Units (version 2): ``positions`` are in world units, float64 (the trainer's float32 frame
+positions mapped by :meth:`~tsplus_wgpu.data.frame.WorldFrame.to_world`), so that what a user
+reads from a checkpoint is the scene's geometry like ``mesh.ply``; ``meta["frame"]`` is the
+:class:`~tsplus_wgpu.data.frame.WorldFrame` the run trains in. ``positions_frame`` keeps the
+device's float32 frame positions as well, and a resume reads those: mapping float64 world values
+back is exact only while the world's offset is below about 1e4 camera radii (near a UTM-sized
+offset, float64 world values are too coarse to tell neighbouring float32 frame values apart), so
+this keeps a resume bit-identical at any offset. The Adam moments are optimiser state and stay
+as the device holds them, in frame units. A version-1 checkpoint (positions in the scene's
+absolute units, no frame) is refused.
 
 What identifies the training data (:func:`data_fingerprint`: the scene's absolute path, format,
 downscale, image folder, image names and sizes, a digest of the pixels, the number of points) is
@@ -21,10 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.frame import WorldFrame
 from ..errors import UserError
+from ..io.atomic import atomic_write
 from .config import TrainConfig
 
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
 
 
 class CheckpointError(UserError, ValueError):
@@ -87,6 +101,30 @@ def _check_arrays(path, arrays):
     if mw is not None and (mw.shape != (t.shape[0],) or not np.all(np.isfinite(mw))):
         raise CheckpointError(f"--resume: {path}: array 'max_weight_acc' has shape {mw.shape} or non-finite values, "
                               f"expected ({t.shape[0]},) finite; the checkpoint is corrupt")
+    pf = arrays.get("positions_frame")
+    if pf is not None and (pf.shape != (n, 3) or pf.dtype != np.float32 or not np.all(np.isfinite(pf))):
+        raise CheckpointError(f"--resume: {path}: array 'positions_frame' has shape {pf.shape} / dtype {pf.dtype} "
+                              f"or non-finite values, expected ({n}, 3) float32; the checkpoint is corrupt")
+    groups = arrays.get("triangle_groups")
+    if groups is not None and (groups.shape != (t.shape[0],) or not np.issubdtype(groups.dtype, np.integer)):
+        raise CheckpointError(f"--resume: {path}: array 'triangle_groups' has shape {groups.shape} or dtype "
+                              f"{groups.dtype}, expected ({t.shape[0]},) integers; the checkpoint is corrupt")
+
+
+def write_checkpoint(path, trainer):
+    """Write ``trainer``'s checkpoint to ``path`` atomically (temp file + os.replace): its
+    :meth:`~.trainer.Trainer.state_arrays` with the positions in world units, its
+    :meth:`~.trainer.Trainer.topology_arrays` and ``meta`` (the frame among it)."""
+    arrays = trainer.state_arrays()
+    arrays["positions_frame"] = arrays["positions"]                          # [N, 3] float32, for resume
+    arrays["positions"] = trainer.frame.to_world(arrays["positions"])      # [N, 3] float64
+    arrays.update(trainer.topology_arrays())
+    meta = dict(version=CHECKPOINT_VERSION, iteration=trainer.iteration, elapsed=trainer.elapsed,
+                frame=trainer.frame.to_json(), topology=trainer.topology.state(),
+                config=asdict(trainer.config), adapter=trainer.renderer.adapter_name,
+                view_rng="numpy default_rng([seed, epoch]).permutation per epoch (stateless)")
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    atomic_write(path, lambda f: np.savez(f, **arrays))
 
 
 def read_checkpoint(path):
@@ -106,9 +144,17 @@ def read_checkpoint(path):
     except Exception as exc:
         raise CheckpointError(f"--resume: {path}: array 'meta' is not a tsplus checkpoint's ({exc}); start "
                               f"again without --resume in a new --out folder") from None
+    if meta.get("version") == 1:
+        raise CheckpointError(f"--resume: {path} was written by an older tsplus (checkpoint version 1: positions in "
+                              f"absolute scene units); train again in a new --out folder")
     if meta.get("version") != CHECKPOINT_VERSION:
         raise CheckpointError(f"--resume: {path} has checkpoint version {meta.get('version')}, "
                               f"this tsplus reads {CHECKPOINT_VERSION}")
+    try:
+        WorldFrame.from_json(meta.get("frame"))
+    except (TypeError, ValueError) as exc:
+        raise CheckpointError(f"--resume: {path}: array 'meta' has no valid 'frame' ({exc}); the checkpoint is "
+                              f"corrupt") from None
     _check_arrays(path, arrays)
     return arrays, meta
 
@@ -180,5 +226,5 @@ def resume_config(meta, config=None):
     return config
 
 
-__all__ = ["CHECKPOINT_VERSION", "CheckpointError", "read_checkpoint", "resume_config", "data_fingerprint",
-           "check_fingerprint", "scene_id"]
+__all__ = ["CHECKPOINT_VERSION", "CheckpointError", "write_checkpoint", "read_checkpoint", "resume_config",
+           "data_fingerprint", "check_fingerprint", "scene_id"]

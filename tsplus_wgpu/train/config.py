@@ -17,6 +17,7 @@ import numbers
 import os
 from dataclasses import MISSING, dataclass, field, fields
 
+from ..data.frame import NEAR
 from ..errors import UserError
 from .schedules import OPACITY_MODES, SH_DEGREE_MAX, SIGMA_FINAL, Schedule
 
@@ -139,7 +140,8 @@ class TrainConfig:
                             check=integer(0, SH_DEGREE_MAX))
     background: tuple = option((0.0, 0.0, 0.0), "RGB behind the triangles (tsplus train: the scene's)",
                                check=rgb())
-    near: float = option(0.01, "near plane (scene units)", check=real(0.0, lo_open=True))
+    near: float = option(NEAR, "near plane, in units of the camera radius (the scene is trained in a normalised frame)",
+                         check=real(0.0, lo_open=True))
     log_every: int = option(100, "iterations between log lines (host readback only then; 0: none)",
                             flag="--log-every", quick=25, check=integer(0), type=int)
     checkpoint_every: int = option(1000, "iterations between checkpoints (0: only at the end or on Ctrl-C)",
@@ -155,6 +157,13 @@ class TrainConfig:
               "on vs 21.92 dB off): use off there", flag="--topology", check=boolean(), choices=["on", "off"])
     max_vertices: int = option(3_000_000, "densification cap (method.md)", flag="--max-vertices",
                                check=integer(0, MAX_VERTICES), type=int)
+    vertex_budget: float = option(
+        2.0, "densification cap per training pixel: the model grows to at most min(max_vertices, ceil(F x P)) "
+             "vertices, P the mean pixel count of a training image at the training resolution (0: no budget). A "
+             "model should not outgrow what its images can constrain: the paper's 3M cap is about 2 vertices per "
+             "pixel of its ~1.6k x 1k training images (its scenes end near 2M); without a budget, lund at "
+             "--downscale 4 (42k pixels per image) grew past 15 vertices per pixel by iteration 1100 and hit the "
+             "storage-binding limit", flag="--vertex-budget", check=real(0.0), type=float, metavar="F")
     densify_stop_rel: float = option(
         0.01, "stop densifying when the mean training L1 of the last 3 topology windows improved by less than this "
               "fraction on the 3 before (0: never)", flag="--densify-stop", check=real(0.0, 1.0), type=float,
@@ -168,6 +177,15 @@ class TrainConfig:
     quick_opacity_lr_scale: float = option(
         10.0, "with quick, the opacity learning rate is multiplied by this (a 300-iteration run has 1/100 of the "
               "paper's steps: at 0.03 a logit moves at most 1.2 before the first scaled prune)", check=real(0.0, lo_open=True))
+    shell: bool = option(
+        True, "add a background shell to the initial mesh: a sphere around the cameras (5 camera radii, or beyond "
+              "the points), cut to what the training views see and coloured from them, exempt from the opacity and "
+              "weight prunes, so pixels SfM found no points for are covered (tsplus_wgpu/train/shell.py)",
+        flag="--shell", check=boolean(), choices=["on", "off"])
+    init_max_edge: float = option(
+        3.0, "drop initial Delaunay faces whose longest edge exceeds this many local point spacings (distance to "
+             "the 8th nearest point): the faces that span free space and train into shards (0: keep all)",
+        flag="--init-max-edge", check=real(0.0), type=float)
     hard_prune: bool = option(True, "ablation: False drops the opacity criterion of pruning",
                              check=boolean())
     weight_prune: bool = option(True, "ablation: False drops the blending-weight criterion of pruning",
@@ -210,9 +228,9 @@ class TrainConfig:
 
     #: fields that must match for ``--resume`` (the others may change between sessions)
     RESUME_KEYS = ("iterations", "quick", "indoor", "seed", "sh_degree", "background", "near", "opacity_reg",
-                   "topology", "max_vertices", "densify_stop_rel", "densify_stop_windows", "quick_topology_epochs",
-                   "quick_opacity_lr_scale", "hard_prune", "weight_prune", "sigma_decay", "sigma_final", "opacity",
-                   "normals")
+                   "topology", "max_vertices", "vertex_budget", "densify_stop_rel", "densify_stop_windows",
+                   "quick_topology_epochs", "quick_opacity_lr_scale", "shell", "init_max_edge", "hard_prune",
+                   "weight_prune", "sigma_decay", "sigma_final", "opacity", "normals")
 
 
 def _label(f, source):

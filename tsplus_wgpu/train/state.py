@@ -34,6 +34,9 @@ class VertexState:
             shapes as ``p``.
         triangles: ``[M, 3]`` int64 vertex indices.
         max_weight: ``[M]`` float32 running max blending weight of each triangle (None: zeros).
+        groups: ``[M]`` int8 group of each triangle (None: all ordinary; ``shell.SHELL``: the
+            background shell, which the opacity and weight prunes leave alone). Children of a
+            split triangle inherit its group.
     """
 
     positions: np.ndarray
@@ -47,6 +50,7 @@ class VertexState:
     exp_avg_sq_logits: np.ndarray
     triangles: np.ndarray
     max_weight: np.ndarray | None = None
+    groups: np.ndarray | None = None
 
     @property
     def n(self):
@@ -71,18 +75,22 @@ class VertexState:
         """The max weights, zeros when unset: ``[M]`` float32."""
         return np.zeros(self.m, np.float32) if self.max_weight is None else self.max_weight
 
+    def group_of(self):
+        """The triangle groups, zeros (ordinary) when unset: ``[M]`` int8."""
+        return np.zeros(self.m, np.int8) if self.groups is None else np.asarray(self.groups, np.int8)
+
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_model(cls, positions, triangles, sh, logits):
-        """A fresh state: the parameters, zero moments, no max weights."""
+    def from_model(cls, positions, triangles, sh, logits, groups=None):
+        """A fresh state: the parameters, zero moments, no max weights, ``groups`` [M]."""
         vertex = dict(positions=np.asarray(positions), sh=np.asarray(sh), logits=np.asarray(logits))
         for key in PARAMS:
             for mom in MOMENTS:
                 vertex[f"{mom}_{key}"] = np.zeros(vertex[key].shape, np.float32)
-        return cls(triangles=np.asarray(triangles, np.int64), **vertex)
+        return cls(triangles=np.asarray(triangles, np.int64), groups=groups, **vertex)
 
     @classmethod
-    def from_flat(cls, arrays, max_weight=None):
+    def from_flat(cls, arrays, max_weight=None, groups=None):
         """From the device layout (what :meth:`~.trainer.Trainer.state_arrays` returns and a
         checkpoint stores): ``positions [N, 3]``, ``sh_planar [K, N, 3]``, ``logits [N]``,
         ``triangles``, flat ``exp_avg_<p>`` / ``exp_avg_sq_<p>``."""
@@ -93,7 +101,8 @@ class VertexState:
             for mom in MOMENTS:
                 arr = arrays[f"{mom}_{key}"]
                 vertex[f"{mom}_{key}"] = arr.reshape(k, n, 3).transpose(1, 0, 2) if key == "sh" else arr.reshape(shape)
-        return cls(triangles=np.asarray(arrays["triangles"], np.int64), max_weight=max_weight, **vertex)
+        return cls(triangles=np.asarray(arrays["triangles"], np.int64), max_weight=max_weight, groups=groups,
+                   **vertex)
 
     def flat(self, key):
         """Parameter ``key`` and its moments in the device layout: ``(param, exp_avg,
@@ -111,18 +120,21 @@ class VertexState:
         return replace(self, **{key: np.asarray(a).astype(dtype) for key, a in self.vertex_arrays().items()})
 
     def take_triangles(self, rows):
-        """The triangles ``rows`` (indices or a mask) with their max weights; vertices unchanged."""
+        """The triangles ``rows`` (indices or a mask) with their max weights and groups; vertices
+        unchanged."""
         mw = None if self.max_weight is None else self.max_weight[rows]
-        return replace(self, triangles=self.triangles[rows], max_weight=mw)
+        gr = None if self.groups is None else np.asarray(self.groups)[rows]
+        return replace(self, triangles=self.triangles[rows], max_weight=mw, groups=gr)
 
     def take_vertices(self, rows, triangles):
         """Vertex rows ``rows`` (new vertex i = old ``rows[i]``), indexed by ``triangles``."""
         return replace(self, triangles=np.asarray(triangles, np.int64),
                        **{key: a[rows] for key, a in self.vertex_arrays().items()})
 
-    def append_vertices(self, rows, triangles, max_weight):
-        """``rows[key]`` appended to every per-vertex array, with new triangles and weights."""
-        return replace(self, triangles=np.asarray(triangles, np.int64), max_weight=max_weight,
+    def append_vertices(self, rows, triangles, max_weight, groups=None):
+        """``rows[key]`` appended to every per-vertex array, with new triangles, weights and
+        groups."""
+        return replace(self, triangles=np.asarray(triangles, np.int64), max_weight=max_weight, groups=groups,
                        **{key: np.concatenate([a, rows[key]]) for key, a in self.vertex_arrays().items()})
 
 

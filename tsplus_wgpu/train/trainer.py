@@ -8,75 +8,61 @@ backward (gradients into reused device buffers, no readback) -> early opacity lo
 opacity activation, SH bands above the scheduled degree masked) -> Adam per parameter group
 (positions, SH DC, SH rest, opacity logits) with the scheduled learning rates.
 
-Host round trips: the forward pass's own size readbacks (pair counts) and the backward's
-tile-range readback, both inside the renderer; the trainer reads back only at its logging
-interval and for checkpoints.
+Host round trips: the renderer's size readbacks (pair counts, tile ranges); the trainer reads
+back only at its logging interval and for checkpoints.
 
-Determinism: the view of iteration ``it`` is ``perm_e[(it - 1) % V]`` with ``perm_e`` the
-permutation of the V training views drawn by ``numpy.random.default_rng([seed, e])``,
-``e = (it - 1) // V``: a pure function of (seed, iteration), so the RNG state is the
-iteration and a resumed run draws exactly the views an uninterrupted one does. Every kernel
-sums in a fixed order, so the same seed on the same adapter gives bit-identical parameters,
-and a run resumed from a checkpoint (parameters, Adam moments, iteration) equals the
-uninterrupted one bit for bit.
+Determinism: the view of iteration ``it`` is ``perm_e[(it - 1) % V]``, ``perm_e`` drawn by
+``numpy.random.default_rng([seed, e])`` with ``e = (it - 1) // V``: a pure function of (seed,
+iteration). Every kernel sums in a fixed order, so a seed on one adapter gives bit-identical
+parameters, and a resumed run equals the uninterrupted one bit for bit.
 
-The parts of issue 5 beyond the step above:
+Beyond the step:
 
-* Topology (prune, densify, the densification stop, ``max_vertices``) is
-  :class:`~.strategy.TopologyStrategy`: the step records its per-triangle max-weight
-  accumulation, and every topology step (500 iterations, scaled) is one host round trip
-  (:meth:`Trainer.apply_topology`): the trainer reads its :class:`~.state.VertexState`, the
-  strategy maps it to a new one (pure operations, :mod:`.strategy.ops`) and
-  :meth:`Trainer.set_state` re-creates the device buffers. Its events go to
-  ``log.jsonl`` (``event: topology`` / ``densify_stop``).
+* The initial mesh (no ``model`` given): the Delaunay faces of the scene's points without the
+  long ones (:func:`~.init.init_from_points`, ``config.init_max_edge``), plus the background
+  shell (:mod:`.shell`, ``config.shell``) whose triangles the prunes leave alone (``self.groups``).
+* Topology (prune, densify, the densification stop, :func:`~.strategy.vertex_cap`) is
+  :class:`~.strategy.TopologyStrategy`; each topology step is one host round trip
+  (:meth:`Trainer.apply_topology`: read the :class:`~.state.VertexState`, map it through the pure
+  :mod:`.strategy.ops`, re-create the device buffers in :meth:`Trainer.set_state`).
 * Anti-aliasing (method.md): iteration ``it`` renders with the exact s-times camera
-  (:func:`~.kernels.supersampled_camera`, ``s = Schedule.supersample(it)``: 1, 2 from 20000,
-  4 from 25000, scaled with ``quick``), area-downsamples on the device (``downsample_area``),
-  takes the loss on the downsampled image and sends its gradient back through the transpose
-  (``downsample_area_t``, which writes the backward's vec4 input directly). ``s`` is halved
-  until the sub-pixel image fits the device's storage-binding limit (:meth:`Trainer.fit_supersample`).
-  Held-out evaluation renders at s = 4 (``SUPERSAMPLE_EVAL``) the same way.
-  Max-weight accumulation for topology at s > 1: the forward pass's per-triangle max blending
-  weight ``alpha T`` is then the maximum over the s x s sub-pixel samples instead of the pixel
-  centres. ``alpha T`` is a point-sampled continuous function of the image position, so this is
-  the same quantity sampled more densely (never systematically lower: a triangle's peak weight
-  is at least as well found); thresholds are not rescaled. The renderer's per-view culls in
-  pixels (inradius, projected size < 1 px) act on sub-pixels, so at s > 1 triangles smaller
-  than a pixel but larger than a sub-pixel are drawn and can gain weight; the size prune
-  (1400 px) measures at the training resolution.
-* The optional normal loss (``TrainConfig.normals`` / ``tsplus train --normals DIR``,
-  :mod:`.normals`): for it > 5000 (scaled with ``quick``) and a training view with a normal
-  map, after the photometric backward the trainer renders the model's alpha-blended normals
-  (an unshared copy of the mesh whose colours encode each triangle's camera-facing normal,
-  through the same forward kernels, at the training resolution s = 1), runs the backward on
-  ``0.05 [indoor 0.025] mean(1 - <N, P>)`` and adds both gradient paths (blending weights and
-  the 3D normal) into the same gradient buffers before Adam, all on the device. ``log.jsonl``
-  gets ``normal_loss`` (the mean before the weight) and ``normal_weight`` on those steps.
+  (``s = Schedule.supersample(it)``: 2 from 20000, 4 from 25000, scaled with ``quick``; halved
+  until it fits the binding limit, :meth:`Trainer.fit_supersample`), area-downsamples on the
+  device and sends the gradient back through the transpose; held-out views are evaluated at
+  s = 4. At s > 1 the per-triangle max weight ``alpha T`` is the maximum over sub-pixel samples:
+  the same point-sampled function sampled more densely, so thresholds are not rescaled; the size
+  prune measures at the training resolution.
+* The optional normal loss (``config.normals``, :mod:`.normals`): for it > 5000 (scaled) on views
+  with a map, a second forward/backward of the model's blended normals adds its gradients (both
+  paths) into the same buffers before Adam.
+
+World units: the trainer works in the scene's normalised frame (:mod:`tsplus_wgpu.data.frame`,
+docs/training.md): ``self.scene``, the device buffers and :meth:`Trainer.render` in frame units,
+what a user reads back (``current_model``, ``final_mesh``, checkpoint positions) in world units.
 """
 
 from __future__ import annotations
 
-import json
 import time
-from dataclasses import asdict
 
 import numpy as np
 
-from ..io.atomic import atomic_write
+from ..data.frame import WorldFrame
 from ..io.metrics import psnr, ssim  # noqa: F401  (re-exported: train.trainer.psnr/ssim)
 from ..kernels.loss import DownsampleArea, DownsampleAreaT, PackVOut, supersampled_camera
 from ..kernels.optim import Adam, OpacityRegGradient, TrainActivate, TrainGrads
 from ..render.device_model import DeviceModel
 from ..types import TriangleModel
-from .checkpoint import CHECKPOINT_VERSION, CheckpointError, read_checkpoint, resume_config
+from .checkpoint import CheckpointError, read_checkpoint, resume_config, write_checkpoint
 from .config import TrainConfig
 from .init import SH_C0, init_from_points
+from .shell import background_shell, with_shell
 from .losses import ImageLoss
 from .loop import TrainLoop
 from .normals import NormalLoss, loss_from_render
 from .schedules import FINAL_PRUNE_WEIGHT, SUPERSAMPLE_EVAL, logit_from_opacity
 from .state import PARAMS, VertexState
-from .strategy import TopologyStrategy
+from .strategy import TopologyStrategy, vertex_cap
 
 
 class Trainer:
@@ -86,19 +72,23 @@ class Trainer:
         scene: the scene (cameras, images, points, train/test split).
         config: a :class:`TrainConfig`.
         renderer: a :class:`~tsplus_wgpu.Renderer` (default: a new one on the best adapter).
-        model: an initial :class:`TriangleModel` (default: :func:`init_from_points` of the
-            scene's points and colours).
+        model: an initial :class:`TriangleModel` in world units (default: :func:`init_from_points`
+            of the scene's points and colours).
         normals: normal priors for the normal loss: a :class:`~tsplus_wgpu.data.normals.NormalMaps`
             or a list with one ``(prior [H, W, 3], valid [H, W])`` or None per view (default: read
             from ``config.normals`` when set, else no normal loss).
+        frame: the :class:`~tsplus_wgpu.data.frame.WorldFrame` to train in (default: ``scene.frame()``).
+        groups: ``[M]`` triangle groups of ``model`` (:mod:`.shell`; default: all ordinary). Without
+            ``model``: the points' mesh without long faces, plus the shell (module docstring).
     """
 
     def __init__(self, scene, config: TrainConfig, renderer=None, model: TriangleModel | None = None,
-                 normals=None):
+                 normals=None, frame: WorldFrame | None = None, groups=None):
         from ..render.renderer import Renderer
         if not scene.train_indices:
             raise ValueError("scene: it has no training views")
-        self.scene = scene
+        self.world_scene, self.frame = scene, scene.frame() if frame is None else frame
+        self.scene = scene = scene.in_frame(self.frame)     # what every render, loss and edit uses
         self.config = config
         self.sched = config.schedule(views=len(scene.train_indices))
         self.renderer = renderer if renderer is not None else Renderer()
@@ -106,7 +96,16 @@ class Trainer:
         if model is None:
             if scene.points is None or len(scene.points) < 3:
                 raise ValueError("scene: it has no initial points (need at least 3 to triangulate)")
-            model = init_from_points(scene.points, scene.point_colors, sh_degree=config.sh_degree)
+            model = init_from_points(scene.points, scene.point_colors, sh_degree=config.sh_degree,
+                                     max_edge_ratio=config.init_max_edge or None)
+            shell = None
+            if config.shell:
+                shell = background_shell([scene.cameras[i] for i in scene.train_indices],
+                                         [scene.images[i] for i in scene.train_indices], scene.points,
+                                         sh_degree=config.sh_degree)
+            model, groups = with_shell(model, shell)
+        else:
+            model = self.frame.model_to_frame(model)
         self.train_views = list(scene.train_indices)
         self.iteration = 0
         self.elapsed = 0.0         # seconds of training, summed over sessions
@@ -127,13 +126,15 @@ class Trainer:
         #: returns False stops training as Ctrl-C does (checkpoint, KeyboardInterrupt)
         self.step_hooks = []
         self.last_stats = None
-        self.topology = TopologyStrategy(self.sched, seed=config.seed, max_vertices=config.max_vertices,
+        cap = vertex_cap(config, [scene.cameras[i] for i in self.train_views], c.limits)
+        self.topology = TopologyStrategy(self.sched, seed=config.seed, max_vertices=cap,
                                          stop_rel=config.densify_stop_rel, stop_windows=config.densify_stop_windows,
                                          enabled=config.topology, near=config.near)
         #: the :class:`~.profile.StepProfiler` of profiled steps (created on the first one)
         self.profiler = None
         self.set_state(VertexState.from_model(model.positions, model.triangles, model.sh,
-                                              logit_from_opacity(model.opacity, self.sched.opacity_floor(0))))
+                                              logit_from_opacity(model.opacity, self.sched.opacity_floor(0)),
+                                              groups=groups))
 
     # ------------------------------------------------------------------ device state
     def set_state(self, state: VertexState):
@@ -144,6 +145,8 @@ class Trainer:
         n, m, k = state.n, state.m, state.k
         self.n, self.m, self.k = n, m, k
         self.triangles_host = np.asarray(state.triangles, np.int64)
+        #: per-triangle groups (None: all ordinary; :mod:`.shell`), host only: the prunes read them
+        self.groups = None if state.groups is None else np.asarray(state.groups, np.int8)
         # positions, triangles and the renderer-layout SH double as vertex / index buffers: the
         # live viewer (tsplus train --view) draws them as they are, no copy
         import wgpu
@@ -357,7 +360,7 @@ class Trainer:
 
     def read_state(self) -> VertexState:
         """The model under training as a host :class:`~.state.VertexState` (a readback)."""
-        return VertexState.from_flat(self.state_arrays(), self.topology.max_weight())
+        return VertexState.from_flat(self.state_arrays(), self.topology.max_weight(), self.groups)
 
     def apply_topology(self, it):
         """The topology edit of iteration ``it`` (prune / densify, :class:`~.strategy.TopologyStrategy`):
@@ -382,7 +385,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ checkpoints
     def state_arrays(self):
-        """Host copies of everything a bit-identical resume needs."""
+        """Host copies of everything a bit-identical resume needs (device layout, frame units)."""
         c = self.ctx
         arrays = dict(
             positions=c.read(self.params["positions"], np.float32, 3 * self.n).reshape(self.n, 3),
@@ -397,19 +400,15 @@ class Trainer:
         return arrays
 
     def topology_arrays(self):
-        """The topology strategy's device state (running max weight, L1 ring), for checkpoints."""
-        return dict(max_weight_acc=self.topology.max_weight(), l1_ring=self.topology.ring_values())
+        """The topology's state (running max weight, L1 ring, triangle groups), for checkpoints."""
+        out = dict(max_weight_acc=self.topology.max_weight(), l1_ring=self.topology.ring_values())
+        if self.groups is not None:
+            out["triangle_groups"] = self.groups
+        return out
 
     def save_checkpoint(self, path):
-        """Atomic (temp file + os.replace) checkpoint."""
-        arrays = self.state_arrays()
-        arrays.update(self.topology_arrays())
-        meta = dict(version=CHECKPOINT_VERSION, iteration=self.iteration, elapsed=self.elapsed,
-                    topology=self.topology.state(),
-                    config=asdict(self.config), adapter=self.renderer.adapter_name,
-                    view_rng="numpy default_rng([seed, epoch]).permutation per epoch (stateless)")
-        arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
-        atomic_write(path, lambda f: np.savez(f, **arrays))
+        """Atomic (temp file + os.replace) checkpoint (:func:`~.checkpoint.write_checkpoint`)."""
+        write_checkpoint(path, self)
 
     @classmethod
     def resume(cls, path, scene, config: TrainConfig | None = None, renderer=None, normals=None, loaded=None):
@@ -417,16 +416,20 @@ class Trainer:
         checkpoint's on :attr:`TrainConfig.RESUME_KEYS`; other fields (logging) come from it.
         ``normals``: the normal priors when they were given to the trainer directly (else they
         are read again from the config's ``normals`` folder). ``loaded``: the checkpoint's
-        ``(arrays, meta)`` when already read (:func:`~.checkpoint.read_checkpoint`)."""
+        ``(arrays, meta)`` when already read (:func:`~.checkpoint.read_checkpoint`). The run
+        continues in the checkpoint's own frame (world positions map back exactly: :mod:`.checkpoint`)."""
         arrays, meta = read_checkpoint(path) if loaded is None else loaded
         config = resume_config(meta, config)
+        frame = WorldFrame.from_json(meta["frame"])
         sh = arrays["sh_planar"].transpose(1, 0, 2)
         init = TriangleModel(arrays["positions"], arrays["triangles"], sh,
                              np.full(arrays["positions"].shape[0], 0.5))
-        t = cls(scene, config, renderer=renderer, model=init, normals=normals)
+        t = cls(scene, config, renderer=renderer, model=init, normals=normals, frame=frame)
         t.iteration = int(meta["iteration"])
         t.elapsed = float(meta.get("elapsed", 0.0))
-        t.set_state(VertexState.from_flat(arrays, arrays.get("max_weight_acc")))
+        flat = dict(arrays, positions=arrays.get("positions_frame",         # exact at any offset (checkpoint.py)
+                                                 frame.to_frame(arrays["positions"]).astype(np.float32)))
+        t.set_state(VertexState.from_flat(flat, arrays.get("max_weight_acc"), arrays.get("triangle_groups")))
         ring = arrays.get("l1_ring")
         if ring is not None and ring.shape != (t.topology.ring_size,):
             raise CheckpointError(f"--resume: {path}: array 'l1_ring' has shape {ring.shape}, expected "
@@ -436,13 +439,13 @@ class Trainer:
 
     # ------------------------------------------------------------------ results
     def current_model(self) -> TriangleModel:
-        """The model as trained (activated opacity, full SH), read back."""
-        return self.model.to_model()
+        """The model as trained (activated opacity, full SH), read back, in world units."""
+        return self.frame.model_to_world(self.model.to_model())
 
     def render(self, model, camera, sigma=None, supersample=1):
         """``model`` seen by ``camera`` at ``sigma`` (default: the current one), rendered at
         ``supersample`` x resolution (reduced to fit the device) and area-downsampled on the
-        device. Returns ``[H, W, 3]`` float32."""
+        device. Both in frame units (``self.model``, ``self.scene.cameras``). Returns ``[H, W, 3]`` float32."""
         sigma = self.sched.sigma(self.iteration) if sigma is None else sigma
         res, image, s = self.render_supersampled(model, camera, sigma, supersample)
         if s == 1:
@@ -453,7 +456,7 @@ class Trainer:
     def final_mesh(self):
         """method.md's end of training: render every training view with the trained model,
         delete triangles whose max blending weight <= 0.5 and the vertices no triangle uses;
-        then drop sigma and opacity. Returns ``(positions [V, 3], triangles [F, 3],
+        then drop sigma and opacity. Returns ``(positions [V, 3] in world units, triangles [F, 3],
         colors [V, 3] in [0, 1] from SH DC)``."""
         sigma = self.sched.sigma(self.iteration)
         ss = self.sched.supersample(self.iteration)     # as the last training steps rendered
@@ -482,11 +485,12 @@ class Trainer:
         """Mean PSNR / SSIM over ``views`` (default: the held-out ones, else the training ones)
         of ``model`` (default: the trained model at the current sigma), rendered at
         ``supersample`` x resolution (method.md's evaluation: 4; less where the image would not
-        fit the device) and area-downsampled. Returns (psnr, ssim, images)."""
+        fit the device) and area-downsampled. ``model``: a :class:`TriangleModel` in world units, or a
+        :class:`DeviceModel` in the trainer's frame (``self.model``). Returns (psnr, ssim, images)."""
         views = list(self.scene.test_indices or self.train_views) if views is None else list(views)
         model = self.model if model is None else model
-        if isinstance(model, TriangleModel):
-            model = DeviceModel.from_model(self.renderer, model)     # uploaded once for every view
+        if isinstance(model, TriangleModel):    # uploaded once for every view
+            model = DeviceModel.from_model(self.renderer, self.frame.model_to_frame(model))
         ps, ss, imgs = [], [], []
         for v in views:
             img = self.render(model, self.scene.cameras[v], sigma, supersample)

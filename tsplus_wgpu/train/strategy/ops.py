@@ -56,11 +56,11 @@ def remove_unused_vertices(triangles, num_vertices):
     return new_from_old[t], np.flatnonzero(used)
 
 
-def choose_split(weights, areas, n, largest, rng, min_area=DENSIFY_MIN_AREA):
+def choose_split(weights, areas, n, largest, rng, min_area=DENSIFY_MIN_AREA, largest_from=None):
     """Triangles to split: ``n`` drawn without replacement with probability proportional to
     ``weights`` (0 where ``areas < min_area``; never more than have a non-zero probability),
-    then the ``largest`` by area not drawn already. Nothing when ``n <= 0``. Returns indices
-    in that order (int64)."""
+    then the ``largest`` by area not drawn already (among ``largest_from [M]``, a mask, when
+    given). Nothing when ``n <= 0``. Returns indices in that order (int64)."""
     n = int(n)
     m = len(weights)
     if n <= 0 or m == 0:
@@ -69,7 +69,11 @@ def choose_split(weights, areas, n, largest, rng, min_area=DENSIFY_MIN_AREA):
     p = np.where(np.isfinite(p), p, 0.0)
     k = min(n, int(np.count_nonzero(p)))
     drawn = rng.choice(m, size=k, replace=False, p=p / p.sum()) if k > 0 else np.zeros(0, np.int64)
-    big = np.argsort(-np.asarray(areas, np.float64), kind="stable")[:int(largest)]
+    by_area = np.asarray(areas, np.float64)
+    if largest_from is not None:
+        by_area = np.where(np.asarray(largest_from, bool), by_area, -np.inf)
+    big = np.argsort(-by_area, kind="stable")[:int(largest)]
+    big = big[np.isfinite(by_area[big])]
     big = big[~np.isin(big, drawn)]
     return np.concatenate([drawn, big]).astype(np.int64)
 
@@ -134,7 +138,7 @@ def prune(state, drop):
 
 def densify(state, chosen, floor):
     """Split the ``chosen`` triangles of ``state`` into 4 each (:func:`subdivide`): children
-    inherit their parent's max weight; a midpoint vertex gets the mean of its edge's two rows
+    inherit their parent's max weight and group; a midpoint vertex gets the mean of its edge's two rows
     (in float64 when ``state`` is) and the logit of the mean opacity at opacity floor
     ``floor``."""
     tris, edges, parent = subdivide(state.triangles, chosen, state.n)
@@ -142,7 +146,8 @@ def densify(state, chosen, floor):
     rows = {key: 0.5 * (arr[a] + arr[b]) for key, arr in state.vertex_arrays().items()}
     op = opacity_from_logit(state.logits, floor)
     rows["logits"] = logit_from_opacity(0.5 * (op[a] + op[b]), floor)
-    return state.append_vertices(rows, tris, state.weights()[parent])
+    groups = None if state.groups is None else state.group_of()[parent]
+    return state.append_vertices(rows, tris, state.weights()[parent], groups)
 
 
 __all__ = ["triangle_areas", "projected_sizes", "remove_unused_vertices", "choose_split", "new_vertex_count",

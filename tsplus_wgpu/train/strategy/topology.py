@@ -15,7 +15,10 @@ At a topology step (every 500 iterations, scaled with ``quick``; one host round 
    ``Schedule.prune_criteria``, all three unless an ablation switches one off): delete triangles whose
    min vertex opacity <= thr, whose max blending weight over the training views <= thr, or
    whose projected size (max vertex-to-centroid distance, px, max over the training views in
-   front of the near plane) > 1400 [1300]; thr = ``Schedule.prune_threshold``. The **hard
+   front of the near plane) > 1400 [1300]; thr = ``Schedule.prune_threshold``. Triangles of the
+   background shell (:mod:`..shell`, group ``SHELL``) are exempt from the opacity and weight
+   tests: they are the backdrop that keeps pixels covered while the surface in front is still
+   semi-transparent (the final cleanup's weight test still applies to them). The **hard
    prune** (``is_hard_prune_step``, 5000) is the opacity criterion (the paper's "remove all
    triangles with opacity below T_o"); it is also part of every regular prune, so at 5000 the
    two coincide. The weight criterion needs the maximum over *all* training views: when the
@@ -24,14 +27,15 @@ At a topology step (every 500 iterations, scaled with ``quick``; one host round 
    the maximum is reset after each prune that applied it.
 2. **Remove unused vertices** and compact the indices (:func:`.ops.remove_unused`).
 3. **Densify** (``is_densify_step``: every 500 in (500, 13000) [(1000, 25000)]) unless
-   stopped: ``n = min(cap, 1.23 [1.27] V) - V`` (``Schedule.densify_count``, cap =
-   ``max_vertices``, n <= 0: nothing) triangles drawn without replacement with probability
+   stopped: ``n = min(cap, 1.23 [1.27] V) - V`` (``Schedule.densify_count``, cap = the run's
+   vertex cap, :mod:`.cap`; n <= 0: nothing) triangles drawn without replacement with probability
    proportional to the max blending weight (0 where the 3D area < 7.5e-5; at most as many as
    have a non-zero probability, so all-zero weights draw none), plus the 100 [500] largest by
-   area (:func:`.ops.choose_split`). Each becomes 4 (:func:`.ops.densify`); a midpoint vertex is keyed
+   area, not counting the shell's (far away, large in 3D but not on screen) (:func:`.ops.choose_split`). Each becomes 4 (:func:`.ops.densify`); a midpoint vertex is keyed
    by its edge, so two chosen neighbours share it; it gets the mean position, SH and
    activated opacity of the edge's two vertices; parents are removed. The chosen list is cut
-   (largest last) so that V never exceeds ``max_vertices``. Children inherit their parent's
+   (largest last) so that neither V nor M passes the cap (:mod:`.cap`: vertices, and the
+   triangles one storage binding holds). Children inherit their parent's
    running max weight (only matters before the first weight prune resets it).
 
 **Adam state follows every edit**: rows of surviving vertices are kept (moved with the index
@@ -44,12 +48,14 @@ training L1 of the iterations since the previous topology step is appended to a 
 each densify step, with S_now the mean of the last K windows and S_prev the mean of the K before (K =
 ``densify_stop_windows``, 3), densification stops for good when
 ``(S_prev - S_now) / S_prev < densify_stop_rel`` (0.01; 0 disables), or when V reached
-``max_vertices``. The reason is logged (``event: densify_stop``). Windows that
-straddle a prune count like any other: a prune raises the training L1 for a while, and the stop
-then reads it as "no better". That is deliberate, measured on procedural:small, quick, 3000
-iterations: the stop fires at iteration 554, just after the hard prune (78,697 vertices; held-out
-mesh 25.56 dB); starting the history over at the hard prune instead kept densifying to 240,209
-vertices by iteration 725 with no lower training L1 (0.0315 -> 0.0339) at a fifth of the speed.
+the cap or M has no room for one more split (the reason names the bound: max-vertices, vertex
+budget or storage-binding limit). The reason is logged (``event: densify_stop``); the cap itself
+in a first ``event: vertex_cap`` record. Windows that straddle a prune count like any other: a
+prune raises the training L1 for a while, and the stop then reads it as "no better". That is
+deliberate, measured on procedural:small, quick, 3000 iterations: the stop fires at iteration
+554, just after the hard prune (78,697 vertices; held-out mesh 25.56 dB); starting the history
+over at the hard prune instead kept densifying to 240,209 vertices by iteration 725 with no
+lower training L1 (0.0315 -> 0.0339) at a fifth of the speed.
 
 Sampling uses ``numpy.random.default_rng([seed, iteration, 1])``: stateless, so a resumed run
 draws what an uninterrupted one draws.
@@ -63,7 +69,9 @@ import numpy as np
 
 from ...kernels.topology import MaxWeightAccumulate
 from ..schedules import opacity_from_logit
+from ..shell import SHELL
 from . import ops
+from .cap import VertexCap
 
 
 class TopologyStrategy:
@@ -72,7 +80,10 @@ class TopologyStrategy:
     Args:
         schedule: the run's :class:`~..schedules.Schedule`.
         seed: the run's seed (sampling).
-        max_vertices: densification cap (method.md: 3M).
+        max_vertices: densification cap: a number (method.md: 3M), or the run's
+            :class:`~.cap.VertexCap` (:func:`~.cap.vertex_cap`: the smallest of ``max_vertices``,
+            the vertex budget and the device's storage-binding limit), which names the bound in
+            the densify_stop reason and in a first ``event: vertex_cap`` log record.
         stop_rel, stop_windows: the densification stop (0 disables it).
         enabled: False turns every edit off (the per-step accumulation still runs).
         near: near plane of the size criterion (scene units).
@@ -82,7 +93,8 @@ class TopologyStrategy:
                  near=0.01):
         self.sched = schedule
         self.seed = int(seed)
-        self.max_vertices = int(max_vertices)
+        self.cap = max_vertices if isinstance(max_vertices, VertexCap) else VertexCap(int(max_vertices))
+        self.max_vertices = self.cap.vertices
         self.stop_rel = float(stop_rel)
         self.stop_windows = int(stop_windows)
         self.enabled = bool(enabled)
@@ -92,7 +104,7 @@ class TopologyStrategy:
         self.l1_windows = []           # mean training L1 per topology window
         self.last_read = 0             # iteration of the last ring read
         self.densify_stopped = None    # reason, once stopped
-        self.events = []               # log records not yet written
+        self.events = [self.cap.record()] if self.enabled else []   # log records not yet written
         self.kernel = None
         self.ctx = None
         self.m = 0                     # triangles the accumulator holds
@@ -158,13 +170,16 @@ class TopologyStrategy:
         self.l1_windows.append(float(np.mean(ring[idx])))
         self.last_read = it
 
-    def check_stop(self, it, num_vertices):
-        """Stop densifying for good when the cap is reached or the training L1 stopped improving."""
+    def check_stop(self, it, num_vertices, num_triangles=0):
+        """Stop densifying for good when the cap is reached (vertices, or triangles: no room for
+        one more split) or the training L1 stopped improving."""
         if self.densify_stopped is not None:
             return
         k = self.stop_windows
         if num_vertices >= self.max_vertices:
-            self.densify_stopped = f"max-vertices reached ({num_vertices} >= {self.max_vertices})"
+            self.densify_stopped = self.cap.reached(num_vertices)
+        elif self.cap.triangles is not None and num_triangles + 3 > self.cap.triangles:
+            self.densify_stopped = self.cap.triangles_reached(num_triangles)
         elif self.stop_rel > 0 and k > 0 and len(self.l1_windows) >= 2 * k:
             prev = float(np.mean(self.l1_windows[-2 * k:-k]))
             now = float(np.mean(self.l1_windows[-k:]))
@@ -192,7 +207,7 @@ class TopologyStrategy:
         else:
             state = ops.remove_unused(state)
         if s.is_densify_step(it):
-            self.check_stop(it, state.n)
+            self.check_stop(it, state.n, state.m)
             if self.densify_stopped is None:
                 state = self.densify(state, it, rec)
         if reset:
@@ -225,6 +240,10 @@ class TopologyStrategy:
             reset = True
         else:
             rec["weight_prune_skipped"] = "not every training view rendered since the last reset"
+        shell = state.group_of() == SHELL      # the backdrop: kept by the opacity and weight tests
+        if shell.any():
+            rec["shell_kept"] = int((drop & shell).sum())
+            drop &= ~shell
         big = ops.projected_sizes(state.positions, tris, cameras, self.near) > s.prune_max_size()
         rec["pruned_size"] = int((big & ~drop).sum())
         drop |= big
@@ -235,17 +254,21 @@ class TopologyStrategy:
         return drop, reset
 
     def densify(self, state, it, rec):
-        """Split triangles drawn by max weight plus the largest (never past ``max_vertices``)."""
+        """Split triangles drawn by max weight plus the largest (never past the cap: vertices, and
+        triangles, 3 more a split)."""
         s = self.sched
         n = state.n
         rng = np.random.default_rng([self.seed, int(it), 1])
         count = s.densify_count(n, cap=self.max_vertices)
         areas = ops.triangle_areas(state.positions, state.triangles)
-        chosen = ops.choose_split(state.weights(), areas, count, s.densify_always_largest(), rng)
+        chosen = ops.choose_split(state.weights(), areas, count, s.densify_always_largest(), rng,
+                                  largest_from=state.group_of() != SHELL)
         if len(chosen):
             added = ops.new_vertex_count(state.triangles, chosen, n)
             budget = max(0, self.max_vertices - n)
             chosen = chosen[:max(0, int(np.searchsorted(added, budget, side="right")) - 1)]
+            if self.cap.triangles is not None:
+                chosen = chosen[:max(0, (self.cap.triangles - state.m) // 3)]
         state = ops.densify(state, chosen, s.opacity_floor(it))
         rec["split"] = int(len(chosen))
         rec["split_requested"] = int(count)

@@ -1,0 +1,119 @@
+"""A first `tsplus train SCENE --out DIR` on a CPU adapter: the quick preset at a downscale that keeps a
+training image within 2**15 = 32,768 pixels (unless --preset / --downscale / a --config file say otherwise),
+the plan printed before training, an estimate of the run's duration after the first timed steps, and
+a plain --resume that continues its own run."""
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tsplus_wgpu.cli.main import build_parser
+from tsplus_wgpu.cli.train import CPU_MAX_PIXELS, cpu_downscale, plan_lines, plan_run
+from tsplus_wgpu.data.scene import downscaled_size
+from tsplus_wgpu.train.config import TrainConfig
+
+
+@pytest.mark.parametrize("size, factor, trained", [
+    ((800, 600), 4, (200, 150)), ((1000, 750), 5, (200, 150)), ((948, 712), 5, (190, 142)),
+    ((1080, 1920), 8, (135, 240)), ((960, 540), 4, (240, 135)), ((1920, 1080), 8, (240, 135)),
+    ((200, 150), 1, (200, 150)), ((64, 48), 1, (64, 48)),
+    ((8000, 100), 3, (2667, 33)),                                   # never a side under 32 pixels
+])
+def test_the_cpu_downscale_is_the_smallest_that_fits(size, factor, trained):
+    assert cpu_downscale(*size) == factor and downscaled_size(*size, factor) == trained
+    if factor > 1 and size != (8000, 100):
+        assert math.prod(trained) <= CPU_MAX_PIXELS < math.prod(downscaled_size(*size, factor - 1))
+
+
+def _args(*argv, scene="scene"):
+    return build_parser().parse_args(["train", scene, "--out", "run", *argv])
+
+
+def _plan(*argv, cpu=True, checkpoint=None, scene="scene"):
+    p = plan_run(_args(*argv, scene=scene), cpu, lambda: [(800, 600), (640, 480)], checkpoint)
+    return p.preset, p.downscale, p.preset_from, p.downscale_from
+
+
+def _not_asked():
+    raise AssertionError("the image sizes were read")
+
+
+def test_a_cpu_adapter_plans_the_quick_preset_at_a_small_size():
+    assert _plan() == ("quick", 4, "CPU adapter", "CPU adapter")           # the largest image decides
+    assert _plan("--iterations", "500") == ("quick", 4, "CPU adapter", "CPU adapter")   # quick scales to it
+    # each flag stands on its own; an explicit --downscale 1 stays 1 (and no image is looked at)
+    assert _plan("--preset", "paper") == ("paper", 4, "--preset", "CPU adapter")
+    assert _plan("--downscale", "1") == ("quick", 1, "CPU adapter", "--downscale")
+    assert plan_run(_args("--preset", "paper", "--downscale", "1"), True, _not_asked).downscale == 1
+    # the procedural scene has fixed sizes; a GPU adapter changes nothing
+    assert plan_run(_args(scene="procedural:small"), True, _not_asked).downscale_from == "default"
+    p = plan_run(_args(), False, _not_asked)
+    assert (p.preset, p.downscale, p.preset_from, p.downscale_from) == ("paper", 1, "default", "default")
+
+
+def test_a_config_file_that_sets_the_preset_or_iterations_keeps_it(tmp_path):
+    for text, preset in (("quick = false\n", None), ("iterations = 900\n", None), ("seed = 3\n", "quick")):
+        path = tmp_path / "c.toml"
+        path.write_text(text)
+        assert _plan("--config", str(path))[:2] == (preset, 4), text
+
+
+def test_resume_keeps_the_runs_preset_and_downscale():
+    ckpt = dict(quick=True, extra=dict(downscale=4, scene="/x"))
+    for cpu in (True, False):
+        assert _plan(cpu=cpu, checkpoint=ckpt) == ("quick", 4, "checkpoint", "checkpoint")
+    assert _plan(checkpoint=dict(quick=False, extra={})) == ("paper", 1, "checkpoint", "checkpoint")
+    assert _plan("--downscale", "2", checkpoint=ckpt)[1:] == (2, "checkpoint", "--downscale")   # refused later
+
+
+def test_the_plan_lines_say_what_was_chosen_and_how_to_undo_it():
+    scene = SimpleNamespace(cameras=[SimpleNamespace(width=200, height=150)], train_indices=[0])
+    cfg = TrainConfig.preset(quick=True)
+    cpu = plan_run(_args(), True, lambda: [(800, 600)])
+    assert plan_lines(cpu, cfg, scene) == [
+        "plan: quick preset (for the CPU adapter), 3,000 iterations at 200x150 (--downscale 4, for the CPU adapter)",
+        "CPU adapter: quick preset, --downscale 4 (200x150) so the run takes about 13 min on 2 cores; pass "
+        "--preset paper --downscale 1 for the paper's run"]
+    asked = plan_run(_args("--preset", "quick", "--downscale", "4"), True, _not_asked)
+    assert plan_lines(asked, cfg, scene) == [
+        "plan: quick preset (as given), 3,000 iterations at 200x150 (--downscale 4, as given)"]
+
+
+def _cli(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "tsplus_wgpu.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=300, cwd=cwd)
+
+
+def test_a_first_run_prints_its_plan_and_estimate_and_resumes_plainly(renderer, tmp_path):
+    if not renderer.ctx.is_cpu:
+        pytest.skip("the CPU adapter's defaults: this adapter is not a CPU")
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import fuzz_data as fd
+    cams, imgs, names, xyz, rgb = fd.procedural_views()        # 64x48, shown at 256x192 (49,152 pixels)
+    big = ([c.scaled(4) for c in cams], [np.kron(im, np.ones((4, 4, 1), np.uint8)) for im in imgs], names, xyz, rgb)
+    fd.make_colmap(tmp_path / "scene", big, binary=False)
+    r = _cli("train", "scene", "--out", "run", "--iterations", 30, "--no-progress", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    out = r.stdout.splitlines()
+    assert "plan: quick preset (for the CPU adapter), 30 iterations at 128x96 (--downscale 2, for the CPU adapter)" \
+        in out, r.stdout
+    assert any(x.startswith("CPU adapter: quick preset, --downscale 2 (128x96) so the run takes about") for x in out)
+    assert [x for x in out if x.startswith("estimate: 5 iterations left at ")] and "(measured over steps 6-25)" in r.stdout
+    assert any(x.startswith("vertex cap: 24,576 (vertex budget 2.0 x 12,288 training pixels") for x in out)
+    cfg = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert cfg["quick"] and cfg["extra"]["downscale"] == 2 and cfg["vertex_budget"] == 2.0
+    # resuming takes the run's own preset and downscale; another --downscale is refused in one line
+    r = _cli("train", "scene", "--out", "run", "--iterations", 30, "--resume", "--overwrite", "--no-progress",
+             cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "plan: quick preset (the run's own), 30 iterations at 128x96 (--downscale 2, the run's own)" in r.stdout
+    assert "from iteration 30 to 30" in r.stdout
+    r = _cli("train", "scene", "--out", "run", "--iterations", 30, "--resume", "--overwrite", "--downscale", 1,
+             cwd=tmp_path)
+    assert r.returncode == 2 and "--downscale 2 (checkpoint) vs 1" in r.stderr

@@ -1,0 +1,176 @@
+"""The background shell (train/shell.py), the initial mesh's long-face filter (train/init.py)
+and the triangle groups the topology carries through its edits (state, ops, topology)."""
+
+import numpy as np
+import pytest
+
+from tsplus_wgpu.train.init import init_from_points, long_faces
+from tsplus_wgpu.train.schedules import Schedule, logit_from_opacity
+from tsplus_wgpu.train.shell import (SHELL, SHELL_MIN_RADIUS, SURFACE, background_shell, icosphere, shell_level,
+                                     shell_radius, with_shell)
+from tsplus_wgpu.train.state import VertexState
+from tsplus_wgpu.train.strategy import ops
+from tsplus_wgpu.types import SH_C0, Camera, TriangleModel
+
+
+def _look_at(eye, target, width=40, height=30, f=30.0):
+    eye, target = np.asarray(eye, float), np.asarray(target, float)
+    z = target - eye
+    z /= np.linalg.norm(z)
+    up = np.array([0.0, 1.0, 0.0]) if abs(z[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    r = np.stack([x, y, z])
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = r, -r @ eye
+    return Camera(width, height, f, f, width / 2, height / 2, m)
+
+
+@pytest.mark.parametrize("level", [0, 1, 2, 3])
+def test_icosphere_counts_unit_and_outward(level):
+    v, f = icosphere(level)
+    assert v.shape == (10 * 4**level + 2, 3) and f.shape == (20 * 4**level, 3)
+    np.testing.assert_allclose(np.linalg.norm(v, axis=1), 1.0, atol=1e-15)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    assert (np.sum(n * v[f].mean(axis=1), axis=1) > 0).all()
+    # a closed 2-manifold: every edge in exactly two faces, Euler characteristic 2
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    assert (counts == 2).all() and len(v) - len(counts) + len(f) == 2
+
+
+def test_radius_and_level_rules():
+    assert shell_radius(None) == SHELL_MIN_RADIUS
+    pts = np.zeros((100, 3))
+    pts[:, 0] = np.linspace(0, 10, 100)
+    assert shell_radius(pts) == pytest.approx(2.0 * np.percentile(pts[:, 0], 99))
+    cams = [_look_at((0, 0, 0), (0, 0, 1), f=f) for f in (30.0, 30.0, 30.0)]
+    assert shell_level(cams) == 3                     # clamped low: 1.107 * 30 / 8 = 4.2 -> level 2
+    assert shell_level([_look_at((0, 0, 0), (0, 0, 1), f=250.0)]) == 5      # 34.6 -> 5.1
+    assert shell_level([_look_at((0, 0, 0), (0, 0, 1), f=1e5)]) == 6
+
+
+def test_background_shell_colour_and_cut():
+    """Two views from the centre looking +z, uniformly red and green: the vertices each sees
+    take its colour, those both see the mean; the shell is cut to what the views see (with
+    the margin), and what no view sees is gone."""
+    cams = [_look_at((0, 0, 0), (0, 0, 1)), _look_at((0, 0, 0), (0, 0, 1))]
+    red, green = np.zeros((30, 40, 3)), np.zeros((30, 40, 3))
+    red[..., 0], green[..., 1] = 1.0, 1.0
+    shell = background_shell(cams, [red, green], radius=7.0, level=3)
+    assert shell is not None
+    np.testing.assert_allclose(np.linalg.norm(shell.positions, axis=1), 7.0)
+    full, _ = icosphere(3)
+    assert 0 < shell.num_vertices < len(full)
+    assert (shell.positions[:, 2] > 0).all()          # nothing behind the cameras
+    colour = shell.sh[:, 0] * SH_C0 + 0.5
+    u = cams[0].fx * shell.positions[:, 0] / shell.positions[:, 2] + cams[0].cx
+    v = cams[0].fy * shell.positions[:, 1] / shell.positions[:, 2] + cams[0].cy
+    inside = (u >= 0) & (u < 40) & (v >= 0) & (v < 30)
+    assert inside.any() and (~inside).any()
+    np.testing.assert_allclose(colour[inside], [[0.5, 0.5, 0.0]] * int(inside.sum()), atol=1e-12)
+    np.testing.assert_allclose(colour[~inside], [[0.5, 0.5, 0.0]] * int((~inside).sum()), atol=1e-12)  # image mean
+    assert np.allclose(shell.opacity, 0.9)
+    # a view looking away from every vertex sees none of it
+    assert background_shell([_look_at((0, 0, 0), (0, 0, 1))], [red], radius=1e-3, level=0) is not None
+
+
+def test_with_shell_groups():
+    base = TriangleModel(np.eye(3), [[0, 1, 2]], np.zeros((3, 4, 3)), np.full(3, 0.28))
+    shell = TriangleModel(np.eye(3) * 5, [[0, 1, 2], [2, 1, 0]], np.ones((3, 1, 3)), np.full(3, 0.9))
+    merged, groups = with_shell(base, shell)
+    assert merged.num_vertices == 6 and merged.sh.shape == (6, 4, 3)
+    np.testing.assert_array_equal(merged.triangles, [[0, 1, 2], [3, 4, 5], [5, 4, 3]])
+    np.testing.assert_array_equal(groups, [SURFACE, SHELL, SHELL])
+    assert (merged.sh[3:, 1:] == 0).all() and (merged.sh[3:, 0] == 1).all()
+    same, g = with_shell(base, None)
+    assert same is base and (g == SURFACE).all()
+
+
+def test_long_faces_drop_the_span_across_free_space():
+    """A dense grid on a plane and one far point: every face to the far point spans free space
+    and is dropped; faces within the grid are kept; ratio 0 keeps everything."""
+    g = np.stack(np.meshgrid(np.arange(10.0), np.arange(10.0)), -1).reshape(-1, 2)
+    pts = np.concatenate([np.c_[g, np.zeros(len(g))] + 1e-3 * np.random.default_rng(0).normal(size=(100, 3)),
+                          [[4.5, 4.5, 30.0]]])
+    model, info = init_from_points(pts, sh_degree=0, return_info=True, max_edge_ratio=3.0)
+    assert info.num_long_faces > 0
+    far = np.flatnonzero(model.positions[:, 2] > 10)
+    assert len(far) == 0 or not np.isin(model.triangles, far).any()
+    edge = np.max([np.linalg.norm(model.positions[model.triangles[:, i]] - model.positions[model.triangles[:, (i + 1) % 3]],
+                                  axis=1) for i in range(3)], axis=0)
+    assert edge.max() < 10.0
+    all_faces, info0 = init_from_points(pts, sh_degree=0, return_info=True)
+    assert info0.num_long_faces == 0 and all_faces.num_triangles > model.num_triangles
+    assert np.isin(all_faces.triangles, np.flatnonzero(all_faces.positions[:, 2] > 10)).any()
+    mask = long_faces(model.positions, model.triangles, 3.0)
+    assert not mask.any()
+
+
+def _state(groups, opacity):
+    pos = np.array([[0, 0, 5], [1, 0, 5], [0, 1, 5], [1, 1, 5], [5, 5, 30], [8, 5, 30], [5, 8, 30]], float)
+    tris = np.array([[0, 1, 2], [1, 3, 2], [4, 5, 6]])
+    sh = np.zeros((len(pos), 1, 3))
+    return VertexState.from_model(pos, tris, sh, logit_from_opacity(np.asarray(opacity, float), 0.0),
+                                  groups=np.asarray(groups, np.int8))
+
+
+def test_groups_follow_prune_and_densify():
+    st = _state([SURFACE, SURFACE, SHELL], [0.5] * 7)
+    pruned = ops.prune(st, np.array([True, False, False]))
+    np.testing.assert_array_equal(pruned.groups, [SURFACE, SHELL])
+    split = ops.densify(st, np.array([2, 0]), 0.0)
+    np.testing.assert_array_equal(split.groups, [SURFACE] + [SHELL] * 4 + [SURFACE] * 4)
+    # the largest-by-area part never picks the shell, the weighted draw may
+    areas = ops.triangle_areas(st.positions, st.triangles)
+    assert np.argmax(areas) == 2
+    rng = np.random.default_rng(0)
+    chosen = ops.choose_split(np.zeros(3), areas, 1, 3, rng, largest_from=st.group_of() != SHELL)
+    assert 2 not in chosen and set(chosen) == {0, 1}
+    chosen = ops.choose_split(np.array([0.0, 0.0, 1.0]), areas, 1, 0, rng, largest_from=st.group_of() != SHELL)
+    np.testing.assert_array_equal(chosen, [2])
+
+
+def test_prune_keeps_the_shell():
+    """At the hard prune every triangle is transparent and unseen: the surface goes, the shell
+    stays; without groups everything but the heaviest triangle would go."""
+    from tsplus_wgpu.train.strategy import TopologyStrategy
+    sched = Schedule(total=30000)
+    it = 5000
+    assert sched.is_hard_prune_step(it)
+    cams = [_look_at((0.5, 0.5, 0), (0.5, 0.5, 5))]
+    s = TopologyStrategy(sched)
+    s.seen = {0}
+    st = _state([SURFACE, SURFACE, SHELL], [0.05] * 7)
+    rec = {}
+    drop, _ = s.prune_mask(st, it, [0], cams, rec)
+    np.testing.assert_array_equal(drop, [True, True, False])
+    assert rec["shell_kept"] == 1
+    st = _state([SURFACE, SURFACE, SURFACE], [0.05] * 7)
+    drop, _ = s.prune_mask(st, it, [0], cams, {})
+    assert drop.sum() == 2
+
+
+def test_trainer_starts_with_the_shell_and_checkpoints_its_groups(renderer, tmp_path):
+    """The default initial mesh has shell triangles (marked) behind the filtered Delaunay mesh; a
+    checkpoint stores the groups and a resume gets them back; --shell off has none."""
+    from tsplus_wgpu.data.procedural import load_procedural
+    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    tiny = load_procedural("tiny")
+    cfg = TrainConfig(iterations=4, quick=True, topology=False)
+    t = Trainer(tiny, cfg, renderer=renderer)
+    shell = t.groups == SHELL
+    assert shell.any() and (~shell).any()
+    # shell triangles are the last ones, on a sphere of >= 5 camera radii around the frame origin
+    assert shell[-int(shell.sum()):].all()
+    pos = t.read_state().positions
+    r = np.linalg.norm(pos[t.triangles_host[shell].ravel()], axis=1)
+    assert r.min() >= SHELL_MIN_RADIUS * (1 - 1e-5)
+    t.step()
+    t.save_checkpoint(tmp_path / "c.npz")
+    back = Trainer.resume(tmp_path / "c.npz", tiny, renderer=renderer)
+    np.testing.assert_array_equal(back.groups, t.groups)
+    assert back.read_state().groups.dtype == np.int8
+    off = Trainer(tiny, TrainConfig(iterations=4, quick=True, topology=False, shell=False), renderer=renderer)
+    assert not (off.read_state().group_of() == SHELL).any() and off.m < t.m

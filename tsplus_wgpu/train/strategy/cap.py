@@ -1,0 +1,114 @@
+"""The densification cap: how large topology may grow a model, and which bound sets it
+(:func:`vertex_cap`, a :class:`VertexCap` for :class:`~.topology.TopologyStrategy`).
+
+Vertices: three bounds, the smallest applies.
+
+* ``max_vertices`` (method.md: 3M).
+* The **vertex budget**: ``ceil(vertex_budget x P)``, with P the mean pixel count of one training
+  image at the training resolution. A model should never outgrow what its images can constrain.
+  The paper's cap of 3M vertices is about 2 vertices per pixel of its ~1.6k x 1k training
+  images (its scenes end near 2M), hence the default 2.0. Without it, lund (29 photos, quick,
+  ``--downscale 4``: 237x178, 42k pixels per image) densified from 1,477 to 658,115 vertices by
+  iteration 1,100, more than 15 per pixel, and the run died on the storage-binding limit.
+* The device's **storage-binding limit**: the largest per-vertex buffers (``sh_planar``, the
+  renderer's SH and their gradient: ``12 K`` bytes a vertex, K = 16 at SH degree 3) must each
+  fit one binding. WebGPU's default 128 MiB holds 699,050 vertices at degree 3.
+
+Triangles: the storage-binding limit too. The largest per-triangle buffers (the projected
+triangle record ``Tri2D`` and the backward's corner gradients, 96 bytes a triangle each) bind
+before the SH once a model has more than 2 triangles per vertex, which Delaunay models have (a
+fresh one about 12), so a split is never made that would take the triangles past what one
+binding holds (1,398,101 at 128 MiB). With both bounds, densification alone can never make the
+renderer refuse the model. (The SH of lund's 658,115 vertices, 120.5 MiB, were still under the
+limit.) The per-pair buffers of a view are not bounded here: they depend on how many tiles each
+triangle covers.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...gpu.wgsl import load_wgsl
+
+#: bytes of the backward's gradients per triangle corner (``render/backward.py``: corner_grads)
+CORNER_GRAD_BYTES = 32
+
+
+@dataclass(frozen=True)
+class VertexCap:
+    """The densification cap: ``vertices``, the ``bound`` that sets it (``"max-vertices"``,
+    ``"vertex budget"`` or ``"storage-binding limit"``), ``detail`` (what the cap is, for the
+    densify_stop reason; default the number), ``why`` (one sentence for ``tsplus train``),
+    ``triangles`` (the most triangles one storage binding holds; None: no bound) and ``inputs``
+    (the numbers it came from, for ``log.jsonl``)."""
+
+    vertices: int
+    bound: str = "max-vertices"
+    detail: str | None = None
+    why: str | None = None
+    triangles: int | None = None
+    inputs: dict = field(default_factory=dict)
+
+    def reached(self, num_vertices):
+        """The densify_stop reason at ``num_vertices`` (>= the cap)."""
+        return f"{self.bound} reached ({num_vertices:,} >= {self.detail or f'{self.vertices:,}'})"
+
+    def triangles_reached(self, num_triangles):
+        """The densify_stop reason when a split (3 more triangles) would pass ``triangles``."""
+        return (f"storage-binding limit reached ({num_triangles:,} triangles: a split would pass {self.triangles:,}, "
+                f"the most one storage binding holds)")
+
+    def record(self):
+        """The ``log.jsonl`` record of the cap (``event: vertex_cap``)."""
+        return dict(event="vertex_cap", vertices=self.vertices, bound=self.bound,
+                    **({"why": self.why} if self.why else {}),
+                    **({"triangles": self.triangles} if self.triangles is not None else {}), **self.inputs)
+
+
+def _mib(nbytes):
+    return f"{nbytes / 2**20:,.0f} MiB"
+
+
+def triangle_bytes():
+    """Bytes a triangle of the largest per-triangle buffers: the projected triangle record
+    (``Tri2D``, read from the WGSL) and the backward's 3 corner gradients."""
+    return max(int(load_wgsl("project_triangles").structs["Tri2D"].itemsize), 3 * CORNER_GRAD_BYTES)
+
+
+def vertex_cap(config, cameras, limits=None):
+    """The densification cap of a run (see the module docstring): ``config`` a
+    :class:`~..config.TrainConfig` (``max_vertices``, ``vertex_budget``, ``sh_degree``),
+    ``cameras`` the training cameras at the training resolution, ``limits`` the device's
+    (:attr:`~tsplus_wgpu.gpu.context.GpuContext.limits`; None: no device bound)."""
+    most, budget = int(config.max_vertices), float(config.vertex_budget)
+    inputs = dict(max_vertices=most, vertex_budget=budget)
+    vertices, bound, detail, why = most, "max-vertices", None, "--max-vertices; no vertex budget"
+    if budget > 0:
+        pixels = float(np.mean([c.width * c.height for c in cameras]))
+        inputs["training_pixels"] = pixels
+        per_pixel = f"{budget} x {pixels:,.0f} training pixels"
+        allowed = math.ceil(budget * pixels)
+        if allowed < most:
+            vertices, bound, detail = allowed, "vertex budget", per_pixel
+            why = f"vertex budget {per_pixel}, under --max-vertices {most:,}"
+        else:
+            why = f"--max-vertices, under the vertex budget {per_pixel}"
+    if limits is None:
+        return VertexCap(vertices, bound, detail, why, None, inputs)
+    binding = min(int(limits["max-storage-buffer-binding-size"]), int(limits["max-buffer-size"]))
+    per_vertex, per_triangle = 12 * (int(config.sh_degree) + 1) ** 2, triangle_bytes()
+    fit = binding // per_vertex
+    inputs.update(storage_binding_bytes=binding, sh_bytes_per_vertex=per_vertex, triangle_bytes=per_triangle)
+    if vertices > fit:
+        why = (f"{'the vertex budget' if bound == 'vertex budget' else '--max-vertices'} allows {vertices:,} "
+               f"vertices, but their SH ({per_vertex} bytes a vertex) would need {_mib(vertices * per_vertex)}, over "
+               f"this device's {_mib(binding)} storage-binding limit")
+        vertices, bound = fit, "storage-binding limit"
+        detail = f"{fit:,}, the most vertices whose SH fit one {_mib(binding)} binding"
+    return VertexCap(vertices, bound, detail, why, binding // per_triangle, inputs)
+
+
+__all__ = ["VertexCap", "vertex_cap", "triangle_bytes"]
