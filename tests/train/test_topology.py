@@ -174,3 +174,22 @@ def test_densify_stop_criterion():
     s.check_stop(1000, 10)
     assert s.densify_stopped is None
 
+
+
+def test_trainer_hands_the_backward_its_corner_order(renderer, tiny):
+    """The backward gathers corner gradients per vertex in the stable order of the corners by
+    vertex; the trainer gives it the opacity loss's copy (sorted once per topology) instead of a
+    radix sort per step: it must be exactly that order, after a topology edit too."""
+    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    t = Trainer(tiny, TrainConfig(iterations=300, quick=True), renderer=renderer)
+
+    def check():
+        keys, index = t.model.corner_order
+        tri = t.triangles_host.reshape(-1)
+        want = np.argsort(tri, kind="stable")
+        np.testing.assert_array_equal(t.ctx.read(index, np.uint32, 3 * t.m), want)
+        np.testing.assert_array_equal(t.ctx.read(keys, np.uint32, 3 * t.m), tri[want])
+    check()
+    t.apply_topology(next(i for i in range(1, 301) if t.sched.is_densify_step(i)))
+    assert t.topology.events[-1].get("split", 0) > 0          # the topology changed
+    check()

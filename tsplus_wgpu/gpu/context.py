@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -168,6 +169,7 @@ class GpuContext:
         self.queue = self.device.queue
         self._pipelines = {}
         self._sources = {}
+        self._bytes = [0, 0]      # [live, peak] bytes of the buffers made here (_tally)
 
     @property
     def name(self):
@@ -191,7 +193,7 @@ class GpuContext:
         # zero-sized buffers are invalid; whole vec4s so any buffer can be read 16 bytes at a time
         nbytes = max(16, (int(nbytes) + 15) // 16 * 16)
         self.check_size(label or "buffer", nbytes)
-        buf = self.device.create_buffer(size=nbytes, usage=usage, label=label)
+        buf = self._tally(self.device.create_buffer(size=nbytes, usage=usage, label=label))
         if self.poison and usage & wgpu.BufferUsage.COPY_DST:
             self.queue.write_buffer(buf, 0, b"\xff" * nbytes)
         return buf
@@ -205,11 +207,34 @@ class GpuContext:
             wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST)
         if arr.nbytes % 16:   # whole vec4s (see buffer())
             arr = np.concatenate([arr.view(np.uint8).ravel(), np.zeros(16 - arr.nbytes % 16, np.uint8)])
-        return self.device.create_buffer_with_data(data=arr, usage=usage, label=label)
+        return self._tally(self.device.create_buffer_with_data(data=arr, usage=usage, label=label))
 
     def uniform(self, struct_value, label=""):
-        return self.device.create_buffer_with_data(
-            data=struct_value.tobytes(), usage=wgpu.BufferUsage.UNIFORM | wgpu.BufferUsage.COPY_DST, label=label)
+        return self._tally(self.device.create_buffer_with_data(
+            data=struct_value.tobytes(), usage=wgpu.BufferUsage.UNIFORM | wgpu.BufferUsage.COPY_DST, label=label))
+
+    # A tally of device memory: every buffer made by buffer(), upload() or uniform() counts
+    # from its creation until Python drops it (wgpu releases it then). Buffers made on
+    # ``self.device`` directly (the viewer's and MeshRenderer's, timestamp queries) are not
+    # counted. A weakref finalizer per buffer: a few microseconds each. docs/memory.md.
+    def _tally(self, buf):
+        n, counts = int(buf.size), self._bytes
+        counts[0] += n
+        counts[1] = max(counts[1], counts[0])
+        weakref.finalize(buf, _untally, counts, n).atexit = False
+        return buf
+
+    def live_bytes(self):
+        """Bytes of this context's buffers (buffer, upload, uniform) still alive now."""
+        return self._bytes[0]
+
+    def peak_bytes(self):
+        """The most :meth:`live_bytes` has been since :meth:`reset_peak` (or creation)."""
+        return self._bytes[1]
+
+    def reset_peak(self):
+        """Start a new high-water mark for :meth:`peak_bytes` at the bytes alive now."""
+        self._bytes[1] = self._bytes[0]
 
     def read(self, buffer, dtype, count=None, offset=0):
         dtype = np.dtype(dtype)
@@ -249,6 +274,10 @@ class GpuContext:
                 raise RuntimeError(f"shader {stage}.wgsl failed to compile: {exc}") from exc
             self._pipelines[key] = (pipe, bgl, src)
         return self._pipelines[key]
+
+
+def _untally(counts, n):
+    counts[0] -= n
 
 
 # -------------------------------------------------------------------- WGSL loading

@@ -36,9 +36,8 @@ Beyond the step:
   with a map, a second forward/backward of the model's blended normals adds its gradients (both
   paths) into the same buffers before Adam.
 
-World units: the trainer works in the scene's normalised frame (:mod:`tsplus_wgpu.data.frame`,
-docs/training.md): ``self.scene``, the device buffers and :meth:`Trainer.render` in frame units,
-what a user reads back (``current_model``, ``final_mesh``, checkpoint positions) in world units.
+World units (:mod:`tsplus_wgpu.data.frame`): ``self.scene``, device buffers and :meth:`Trainer.render`
+are in the normalised frame; ``current_model``, ``final_mesh`` and checkpoints in world units.
 """
 
 from __future__ import annotations
@@ -171,6 +170,7 @@ class Trainer:
         self.reg_vals = c.buffer(16 * 3 * m, "opacity_reg_corners")
         self.reg_out = c.buffer(16 * n, "opacity_reg_vertex")
         self.reg.set_topology(self.triangles_host)
+        self.model.corner_order = (self.reg.keys, self.reg.index)   # the backward's gather order: no sort per step
         if self.normal_loss is not None:
             self.normal_loss.set_topology(self.triangles_host, n)
         self.topology.attach(c, m, state.max_weight)
