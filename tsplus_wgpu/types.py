@@ -78,6 +78,14 @@ class Camera:
     def center(self):  # [3] camera centre in world coordinates
         return -self.R.T @ self.t
 
+    def project(self, points):
+        """Pixel positions ``[N, 2]`` and camera-space depths ``[N]`` of world ``points [N, 3]``
+        (float64). Points at z <= 0 get finite but meaningless pixels: mask them by depth."""
+        x = np.asarray(points, np.float64) @ self.R.T + self.t
+        z = x[:, 2]
+        zs = np.where(z > 0, z, 1.0)
+        return np.stack([self.fx * x[:, 0] / zs + self.cx, self.fy * x[:, 1] / zs + self.cy], axis=1), z
+
     def scaled(self, factor):
         """The same camera with the image scaled by ``factor`` (intrinsics follow)."""
         w = max(1, int(round(self.width * factor)))

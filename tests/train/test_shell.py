@@ -10,21 +10,14 @@ from tsplus_wgpu.train.shell import (SHELL, SHELL_MIN_RADIUS, SURFACE, backgroun
                                      shell_radius, with_shell)
 from tsplus_wgpu.train.state import VertexState
 from tsplus_wgpu.train.strategy import ops
-from tsplus_wgpu.types import SH_C0, Camera, TriangleModel
+from tsplus_wgpu.types import SH_C0, TriangleModel
+
+from scenes import look_at_camera
 
 
 def _look_at(eye, target, width=40, height=30, f=30.0):
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = target - eye
-    z /= np.linalg.norm(z)
-    up = np.array([0.0, 1.0, 0.0]) if abs(z[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    r = np.stack([x, y, z])
-    m = np.eye(4)
-    m[:3, :3], m[:3, 3] = r, -r @ eye
-    return Camera(width, height, f, f, width / 2, height / 2, m)
+    """tests/scenes.py's look-at camera with focal length ``f`` (px)."""
+    return look_at_camera(width, height, np.degrees(2 * np.arctan(0.5 * width / f)), eye, target)
 
 
 @pytest.mark.parametrize("level", [0, 1, 2, 3])

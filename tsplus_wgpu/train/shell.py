@@ -97,14 +97,6 @@ def shell_level(cameras):
     return min(max(level, SHELL_LEVELS[0]), SHELL_LEVELS[1])
 
 
-def _project(cam, x):
-    w2c = np.asarray(cam.world_to_camera, np.float64)
-    xc = x @ w2c[:3, :3].T + w2c[:3, 3]
-    z = xc[:, 2]
-    zs = np.where(z > 1e-9, z, 1.0)
-    return cam.fx * xc[:, 0] / zs + cam.cx, cam.fy * xc[:, 1] / zs + cam.cy, z > 1e-9
-
-
 def background_shell(cameras, images, points=None, radius=None, level=None, opacity=SHELL_OPACITY, sh_degree=0):
     """The shell as a :class:`~tsplus_wgpu.TriangleModel` in the frame of ``cameras``
     (normalised: see the module docstring), or None when no view sees any of it.
@@ -125,7 +117,8 @@ def background_shell(cameras, images, points=None, radius=None, level=None, opac
     for cam, img in zip(cameras, images):
         img = np.asarray(img, np.float64)
         h, w = img.shape[:2]
-        u, v, front = _project(cam, pos)
+        uv, z = cam.project(pos)
+        u, v, front = uv[:, 0], uv[:, 1], z > 1e-9
         inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
         mu, mv = SHELL_MARGIN * w, SHELL_MARGIN * h
         near_view |= front & (u >= -mu) & (u < w + mu) & (v >= -mv) & (v < h + mv)

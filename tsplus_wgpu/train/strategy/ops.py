@@ -34,11 +34,7 @@ def projected_sizes(positions, triangles, cameras, near=0.01):
     t = np.asarray(triangles, np.int64)
     out = np.zeros(len(t))
     for cam in cameras:
-        w2c = np.asarray(cam.world_to_camera, np.float64)
-        x = p @ w2c[:3, :3].T + w2c[:3, 3]
-        z = x[:, 2]
-        zs = np.where(z > near, z, 1.0)
-        uv = np.stack([cam.fx * x[:, 0] / zs + cam.cx, cam.fy * x[:, 1] / zs + cam.cy], axis=1)
+        uv, z = cam.project(p)
         tri_uv = uv[t]                                            # [M, 3, 2]
         c = tri_uv.mean(axis=1, keepdims=True)
         size = np.linalg.norm(tri_uv - c, axis=2).max(axis=1)
