@@ -19,10 +19,11 @@ from .colmap_check import MODEL_FILES, check_model
 from .errors import SceneError
 from .plausible import MAX_COORD, MAX_DISTORTION, check_focal
 from .scene import FrameSpec, check_pose
+from .tracks import of_pycolmap_points
 from .undistort import ColmapUndistorter
 
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
-__all__ = ["MODEL_FILES", "PINHOLE_MODELS", "colmap_frames", "find_model_dir", "read_model"]
+__all__ = ["MODEL_FILES", "PINHOLE_MODELS", "colmap_frames", "colmap_tracks", "find_model_dir", "read_model"]
 
 
 def _pycolmap():
@@ -79,7 +80,8 @@ def colmap_frames(root: Path, model_dir: Path, image_dir: Path, warnings: list):
     """FrameSpecs (sorted by image name), SfM points and colours of a COLMAP model.
 
     Returns:
-        ``(frames, points [P,3] or None, colors [P,3] or None, models Counter, rec)``.
+        ``(frames, points [P,3] or None, colors [P,3] or None, models Counter, rec)``; the
+        points' tracks come from :func:`colmap_tracks`.
     """
     rec = read_model(model_dir, warnings)
     ext = ".bin" if (model_dir / "images.bin").is_file() else ".txt"
@@ -119,27 +121,50 @@ def colmap_frames(root: Path, model_dir: Path, image_dir: Path, warnings: list):
         frames.append(FrameSpec(name=im.name, path=image_dir / im.name, camera=pin, group=im.camera_id,
                                 undistort=und, source=f"{model_dir / ('cameras' + ext)} camera {im.camera_id}",
                                 model=model))
-    pts = rec.points3D
-    if len(pts) == 0:
+    xyz, rgb, _, bad, far = _usable_points(rec)
+    if bad + far + len(xyz) == 0:
         warnings.append(f"{model_dir / ('points3D' + ext)} has no points: initial points are made from the "
                         "known poses instead")
         return frames, None, None, models, rec
-    xyz = np.array([p.xyz for p in pts.values()], np.float64)
-    rgb = np.array([p.color for p in pts.values()], np.float64) / 255.0
-    ok = np.all(np.isfinite(xyz), axis=1)
-    if not np.all(ok):
-        warnings.append(f"dropped {int((~ok).sum())} non-finite point(s) from {model_dir / ('points3D' + ext)}")
-        xyz, rgb = xyz[ok], rgb[ok]
-    far = np.any(np.abs(xyz) > MAX_COORD, axis=1)
-    if np.any(far):
-        warnings.append(f"dropped {int(far.sum())} point(s) beyond {MAX_COORD:g} units from "
+    if bad:
+        warnings.append(f"dropped {bad} non-finite point(s) from {model_dir / ('points3D' + ext)}")
+    if far:
+        warnings.append(f"dropped {far} point(s) beyond {MAX_COORD:g} units from "
                         f"{model_dir / ('points3D' + ext)}")
-        xyz, rgb = xyz[~far], rgb[~far]
     if len(xyz) == 0:
         warnings.append(f"{model_dir / ('points3D' + ext)} has no usable points: initial points are made from the "
                         "known poses instead")
         return frames, None, None, models, rec
     return frames, xyz, rgb, models, rec
+
+
+def _usable_points(rec):
+    """The points of ``rec`` that :func:`colmap_frames` keeps (finite, within ``MAX_COORD``), in
+    its order: ``(xyz [P,3], rgb [P,3] in [0,1], point ids [P], non-finite count, far count)``."""
+    items = list(rec.points3D.items())
+    ids = np.array([k for k, _ in items], np.int64)
+    xyz = np.array([p.xyz for _, p in items], np.float64).reshape(-1, 3)
+    rgb = np.array([p.color for _, p in items], np.float64).reshape(-1, 3) / 255.0
+    finite = np.all(np.isfinite(xyz), axis=1)
+    with np.errstate(invalid="ignore"):
+        far = finite & np.any(np.abs(xyz) > MAX_COORD, axis=1)
+    ok = finite & ~far
+    return xyz[ok], rgb[ok], ids[ok], int((~finite).sum()), int(far.sum())
+
+
+def colmap_tracks(rec, names):
+    """The track table (:mod:`.tracks`) of the points :func:`colmap_frames` returns for ``rec``,
+    in the same order, or None when it returns none.
+
+    Each observation's image becomes the index of its name in ``names`` (the scene's
+    ``image_names``); observations of images not in ``names`` (unposed, skipped, not loaded)
+    are dropped, and an image seeing a point twice counts once (views ascending per point).
+    """
+    ids = _usable_points(rec)[2]
+    if len(ids) == 0:
+        return None
+    pts = rec.points3D
+    return of_pycolmap_points(rec, [pts[pid] for pid in ids.tolist()], {n: i for i, n in enumerate(names)})
 
 
 def _check_distortion(pycolmap_cam, model, cam_id, where):

@@ -13,6 +13,7 @@ from .errors import SceneError
 from .images import list_images
 from .plausible import check_train_size
 from .scene import Scene, downscaled_size, load_frames, make_split, select_frames
+from .tracks import remap, subset
 
 FORMATS = ("colmap", "transforms", "nerf-synthetic", "llff", "photos", "procedural")
 
@@ -147,8 +148,8 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
 
     root = _scene_root(path)
     warnings: list = []
-    fmt, frame_specs, rest, pts, cols, bounds, (image_dir, why) = _read_format(root, images, downscale, cache_dir,
-                                                                              progress, warnings)
+    fmt, frame_specs, rest, pts, cols, bounds, (image_dir, why), rec = _read_format(root, images, downscale,
+                                                                                   cache_dir, progress, warnings)
     bg = _parse_background(background, (1.0, 1.0, 1.0) if fmt == "nerf-synthetic" else (0.0, 0.0, 0.0))
     is_test = [f.is_test for f in frame_specs]
     train_all, test_all, rule = make_split(len(frame_specs), split, is_test if fmt == "nerf-synthetic" else None)
@@ -171,19 +172,29 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
 
     source = "sfm" if pts is not None else "none"
     if points == "none":
-        pts = cols = None
+        pts = cols = tracks = None
         source = "none"
     elif pts is None or points in ("triangulate", "frusta"):
         full = _full_size_specs(fmt, root, images, [chosen[k] for k in kept], image_dir)
-        pts, cols, source = _initial_points(points, cameras, imgs, full, bg, train_idx, bounds, cache_dir,
-                                            progress, seed, warnings)
-    if pts is not None and max_points is not None and len(pts) > int(max_points):
-        keep = np.sort(np.random.default_rng(seed).choice(len(pts), int(max_points), replace=False))
-        pts, cols = pts[keep], cols[keep]
+        pts, cols, source, tracks = _initial_points(points, cameras, imgs, full, bg, train_idx, bounds, cache_dir,
+                                                    progress, seed, warnings)
+    else:
+        from .colmap import colmap_tracks  # noqa: PLC0415
+        tracks = colmap_tracks(rec, names)
+    pts, cols, tracks = _subsample(pts, cols, tracks, max_points, seed)
     return Scene(format=fmt, cameras=cameras, images=imgs, image_names=names, points=pts, point_colors=cols,
-                 points_source=source, train_indices=train_idx, test_indices=test_idx, warnings=warnings,
-                 root=str(root), background=bg, skipped=skipped, camera_models=models, split_rule=rule,
-                 image_dir=str(image_dir) if image_dir is not None else None, image_dir_reason=why, downscale=total)
+                 point_tracks=tracks, points_source=source, train_indices=train_idx, test_indices=test_idx,
+                 warnings=warnings, root=str(root), background=bg, skipped=skipped, camera_models=models,
+                 split_rule=rule, image_dir=image_dir and str(image_dir), image_dir_reason=why, downscale=total)
+
+
+def _subsample(pts, cols, tracks, max_points, seed):
+    """At most ``max_points`` of the initial points (a random subset, in their order), with their
+    colours and tracks."""
+    if pts is None or max_points is None or len(pts) <= int(max_points):
+        return pts, cols, tracks
+    keep = np.sort(np.random.default_rng(seed).choice(len(pts), int(max_points), replace=False))
+    return pts[keep], cols[keep], None if tracks is None else subset(tracks, keep)
 
 
 def _check_options(points, on_bad_image, downscale):
@@ -219,12 +230,13 @@ def _scene_root(path) -> Path:
 def _read_format(root, images, downscale, cache_dir, progress, warnings):
     """Detect the format of ``root`` and read its frames: ``(format, frame specs, remaining
     downscale, SfM points or None, their colours, LLFF depth bounds or None, (image folder or
-    None, why that folder))``; a folder of photos runs SfM (cached) first."""
+    None, why that folder), the pycolmap Reconstruction of a COLMAP model or None)``; a folder
+    of photos runs SfM (cached) first."""
     from .colmap import colmap_frames, find_model_dir  # noqa: PLC0415
     from .llff import llff_frames  # noqa: PLC0415
     from .sfm import photo_names, run_photos_sfm  # noqa: PLC0415
     from .transforms import find_transforms, transforms_frames  # noqa: PLC0415
-    pts = cols = bounds = image_dir = None
+    pts = cols = bounds = image_dir = rec = None
     why = ""
     model_dir = find_model_dir(root)
     t_files, t_variant = find_transforms(root)
@@ -234,7 +246,7 @@ def _read_format(root, images, downscale, cache_dir, progress, warnings):
         if not image_dir.is_dir():
             raise SceneError(f"{image_dir}: image folder of the COLMAP model not found; put the images there "
                              "or pass --images FOLDER")
-        frame_specs, pts, cols, _, _ = colmap_frames(root, model_dir, image_dir, warnings)
+        frame_specs, pts, cols, _, rec = colmap_frames(root, model_dir, image_dir, warnings)
     elif t_files:
         fmt = t_variant
         rest = downscale
@@ -256,10 +268,10 @@ def _read_format(root, images, downscale, cache_dir, progress, warnings):
         image_dir = photo_dir
         model_dir = run_photos_sfm(photo_dir, names, cache=cache_dir, progress=progress, warnings=warnings)
         rest = downscale
-        frame_specs, pts, cols, _, _ = colmap_frames(root, model_dir, photo_dir, warnings)
+        frame_specs, pts, cols, _, rec = colmap_frames(root, model_dir, photo_dir, warnings)
     if why.startswith("images/ is missing"):
         warnings.append(f"{image_dir}: {why}")
-    return fmt, frame_specs, rest, pts, cols, bounds, (image_dir, why)
+    return fmt, frame_specs, rest, pts, cols, bounds, (image_dir, why), rec
 
 
 def _full_size_specs(fmt, root, images, specs, image_dir):
@@ -302,7 +314,8 @@ def _initial_points(points, cameras, imgs, specs, background, train_idx, bounds,
     """Initial points without SfM ones (or when asked): triangulated with pycolmap from the
     posed training images at their full size (cached, so every downscale reuses them), else
     made from the camera frusta. ``specs`` are the loaded frames at full size.
-    Returns ``(points, colours, source)``."""
+    Returns ``(points, colours, source, track table or None)`` (:mod:`.tracks`; view ids index
+    ``cameras``; None for frusta points)."""
     from .scene import full_size_frame  # noqa: PLC0415
     from .sfm import cache_root, frusta_points, triangulate_frames  # noqa: PLC0415
     use = train_idx if len(train_idx) >= 2 else list(range(len(cameras)))
@@ -317,13 +330,14 @@ def _initial_points(points, cameras, imgs, specs, background, train_idx, bounds,
             warnings.append(f"initial points triangulated with pycolmap from {len(use)} posed images at full size "
                             f"(mean reprojection error {info['mean_reprojection_error']:.2f} px"
                             + (", cached" if "cached" in info else "") + ")")
-            return pts, cols, "triangulated"
+            tracks = info.get("tracks")
+            return pts, cols, "triangulated", None if tracks is None else remap(tracks, np.asarray(use, np.int64))
         except RuntimeError as exc:
             warnings.append(f"{exc}: initial points made from the camera frusta instead")
     pts, cols = frusta_points(cameras, imgs, bounds=bounds, seed=seed)
     if points == "frusta":
         warnings.append("initial points made from the camera frusta (as asked)")
-    return pts, cols, "frusta"
+    return pts, cols, "frusta", None
 
 
 def frame_sizes(path, images=None) -> list:

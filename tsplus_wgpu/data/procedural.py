@@ -22,6 +22,7 @@ import numpy as np
 from ..types import Camera
 from .raster import NEAR, rasterize
 from .scene import GTMesh, Scene, make_split
+from .tracks import from_mask
 
 SIZES = {
     #        width, height, views, points, supersampling
@@ -375,7 +376,8 @@ def load_procedural(size: str = "tiny", seed: int = 0, split="auto", point_noise
 
     Returns:
         a :class:`~tsplus_wgpu.data.scene.Scene` with ``gt_mesh``, per-view object ``masks`` and
-        ``depths``; points are surface samples seen by at least two views, coloured exactly as rendered.
+        ``depths``; points are surface samples seen by at least two views, coloured exactly as rendered,
+        with the views that see them (before ``point_noise``) as ``point_tracks``.
     """
     from .errors import SceneError  # noqa: PLC0415
     if size not in SIZES:
@@ -395,6 +397,7 @@ def load_procedural(size: str = "tiny", seed: int = 0, split="auto", point_noise
     vis = visibility(pts, cams, depths)
     keep = vis.sum(1) >= 2
     pts, fi = pts[keep], fi[keep]
+    tracks = from_mask(vis[keep])
     cols = surface_color(pts, fi, mesh)
     if point_noise:
         pts = pts + rng.normal(0.0, point_noise, pts.shape)
@@ -402,7 +405,7 @@ def load_procedural(size: str = "tiny", seed: int = 0, split="auto", point_noise
     verts, faces, fobj, objs = mesh
     return Scene(format="procedural", cameras=cams, images=images,
                  image_names=[f"view_{k:03d}.png" for k in range(nviews)], points=pts, point_colors=cols,
-                 points_source="procedural", train_indices=train, test_indices=test, warnings=[],
+                 point_tracks=tracks, points_source="procedural", train_indices=train, test_indices=test, warnings=[],
                  root=None, background=(0.0, 0.0, 0.0), camera_models={"PINHOLE": nviews},
                  split_rule=rule, gt_mesh=GTMesh(verts, faces, fobj, [o.name for o in objs]),
                  masks=masks, depths=depths)

@@ -45,6 +45,11 @@ class Scene:
         image_names: names relative to the image folder.
         points: ``[P, 3]`` float64 initial points, or None.
         point_colors: ``[P, 3]`` float in [0, 1], or None.
+        point_tracks: which views observed each point (SfM tracks), or None when unknown: a track
+            table ``(offsets int64 [P+1], views int32 [K])`` (:mod:`~tsplus_wgpu.data.tracks`);
+            point p was seen by the cameras ``views[offsets[p]:offsets[p+1]]`` (indices into
+            ``cameras``). SfM (COLMAP, photos), triangulated and procedural points have them;
+            frusta points do not.
         points_source: ``"sfm"``, ``"triangulated"``, ``"frusta"``, ``"procedural"`` or ``"none"``.
         train_indices, test_indices: indices into ``cameras``/``images``.
         warnings: human-readable notes about what was skipped or replaced.
@@ -67,6 +72,7 @@ class Scene:
     image_names: list
     points: Optional[np.ndarray] = None
     point_colors: Optional[np.ndarray] = None
+    point_tracks: Optional[tuple] = None
     points_source: str = "none"
     train_indices: list = field(default_factory=list)
     test_indices: list = field(default_factory=list)
@@ -110,7 +116,7 @@ class Scene:
 
     def in_frame(self, frame: WorldFrame) -> "Scene":
         """This scene seen in ``frame``: a shallow copy whose cameras, points, ground-truth mesh
-        and depth maps are mapped into it (images, masks and everything else shared)."""
+        and depth maps are mapped into it (images, masks, point tracks and everything else shared)."""
         gt = self.gt_mesh
         return replace(self, cameras=[frame.camera(c) for c in self.cameras],
                        points=None if self.points is None else frame.to_frame(self.points),

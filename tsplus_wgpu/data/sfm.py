@@ -24,6 +24,8 @@ import numpy as np
 
 from .errors import SceneError
 from .images import IMAGE_EXTENSIONS, read_image_size, write_image
+from .tracks import check as check_tracks
+from .tracks import of_pycolmap_points as tracks_of_points
 
 def _pycolmap():
     try:
@@ -273,7 +275,8 @@ def triangulate_known_poses(cameras: list, images: list, names: list, cache_dir:
         cache_dir: cache folder; the result ``points.npz`` is cached there keyed on cameras and images.
 
     Returns:
-        ``(points [P,3], colors [P,3], info dict)``.
+        ``(points [P,3], colors [P,3], info dict)``; ``info["tracks"]``: the points' track table
+        (:mod:`.tracks`), ids indexing ``cameras``.
 
     Raises:
         RuntimeError: pycolmap failed or produced too few points (the caller falls back to frusta).
@@ -292,9 +295,11 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
             called only when the result is not cached, and one image is held at a time.
         names: the images' names (for the progress display).
         key: cache key naming the images' content, cameras and parameters.
-        cache_dir: cache folder; the result is ``cache_dir/tri_<key>/points.npz``.
+        cache_dir: cache folder; the result is ``cache_dir/tri_<key>/points.npz`` (a cached file
+            without the tracks, from an older version, is computed again).
 
-    Returns / Raises: as :func:`triangulate_known_poses`.
+    Returns / Raises: as :func:`triangulate_known_poses`; ``info["tracks"]`` is the points' track
+    table (:mod:`.tracks`) whose ids index ``names``.
     """
     pycolmap = _pycolmap()
     pycolmap.set_random_seed(0)
@@ -302,8 +307,12 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
     result = work / "points.npz"
     if result.is_file():
         try:
-            z = np.load(result)
-            return z["xyz"], z["rgb"], {"cached": str(result), "mean_reprojection_error": float(z["err"])}
+            with np.load(result) as z:
+                if "track_offsets" in z.files and "track_frames" in z.files:  # else stale (older version)
+                    tracks = (z["track_offsets"].astype(np.int64), z["track_frames"].astype(np.int32))
+                    check_tracks(tracks, len(z["xyz"]), len(names))
+                    return z["xyz"], z["rgb"], {"cached": str(result), "mean_reprojection_error": float(z["err"]),
+                                                "tracks": tracks}
         except Exception:  # a damaged cache entry: compute again
             pass
     if work.exists():
@@ -313,13 +322,14 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
         img_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise RuntimeError(f"cache folder {work} cannot be written ({exc.strerror})") from None
-    cameras, safe = [], []
+    cameras, safe, frame_of = [], [], []   # frame_of[k]: the index into names of safe[k]
     for i in range(len(names)):
         got = load_one(i)
         if got is None:
             continue
         cam, img = got
         cameras.append(cam)
+        frame_of.append(i)
         safe.append(f"{len(safe):05d}.png")
         write_image(img_dir / safe[-1], img)
         del img
@@ -332,11 +342,12 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
     xyz = np.array([p.xyz for p in pts], np.float64)
     rgb = np.array([p.color for p in pts], np.float64) / 255.0
     err = float(rec.compute_mean_reprojection_error())
+    tracks = tracks_of_points(rec, pts, dict(zip(safe, frame_of)))
     tmp = work / f"points.tmp{os.getpid()}.npz"
-    np.savez(tmp, xyz=xyz, rgb=rgb, err=err)
+    np.savez(tmp, xyz=xyz, rgb=rgb, err=err, track_offsets=tracks[0], track_frames=tracks[1])
     os.replace(tmp, result)
     shutil.rmtree(img_dir, ignore_errors=True)
-    return xyz, rgb, {"mean_reprojection_error": err, "reconstruction": rec, "work": str(work)}
+    return xyz, rgb, {"mean_reprojection_error": err, "reconstruction": rec, "work": str(work), "tracks": tracks}
 
 
 def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaustive_max):
