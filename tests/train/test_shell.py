@@ -1,6 +1,8 @@
 """The background shell (train/shell.py), the initial mesh's long-face filter (train/init.py)
 and the triangle groups the topology carries through its edits (state, ops, topology)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -136,10 +138,22 @@ def test_prune_keeps_the_shell():
     s = TopologyStrategy(sched)
     s.seen = {0}
     st = _state([SURFACE, SURFACE, SHELL], [0.05] * 7)
+    st = replace(st, max_weight=np.array([0.05, 0.05, 0.2], np.float32))   # the shell seen through the surface
     rec = {}
     drop, _ = s.prune_mask(st, it, [0], cams, rec)
     np.testing.assert_array_equal(drop, [True, True, False])
-    assert rec["shell_kept"] == 1
+    assert rec["shell_kept"] == 1 and rec["shell_hidden"] == 0
+    # a shell triangle no view saw (weight <= 1/255) is behind the surfaces: it goes from the hard prune on
+    hidden = replace(st, max_weight=np.array([0.05, 0.05, 0.003], np.float32))
+    rec = {}
+    drop, _ = s.prune_mask(hidden, it, [0], cams, rec)
+    assert drop[2]                  # (the heaviest surface triangle stays: never an empty model)
+    assert rec["shell_hidden"] == 1 and rec["shell_kept"] == 0
+    before = sched.floor_start() - sched.topology_every()
+    assert sched.is_prune_step(before)
+    s.seen = {0}
+    drop, _ = s.prune_mask(hidden, before, [0], cams, {})
+    assert not drop[2]
     st = _state([SURFACE, SURFACE, SURFACE], [0.05] * 7)
     drop, _ = s.prune_mask(st, it, [0], cams, {})
     assert drop.sum() == 2

@@ -32,7 +32,7 @@ from ..io.atomic import describe, remove_orphans, write_bytes, write_error, writ
 from ..train.config import TrainConfig, check_settings, cli_options, preset_defaults
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
-_FROM_FLAG = {"topology": lambda v: v == "on", "shell": lambda v: v == "on", "normals": lambda v: str(Path(v).resolve())}
+_FROM_FLAG = {"topology": lambda v: v == "on", "shell": lambda v: v == "on", "carve": lambda v: v == "on", "normals": lambda v: str(Path(v).resolve())}
 
 #: the most pixels of a training image when ``tsplus train`` picks the downscale for a CPU adapter.
 #: Measured: the cup at 200x150 (30,000 pixels), quick preset, 3000 iterations, trained in 13 min
@@ -333,6 +333,13 @@ def _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded=None):
     print(f"scene: {args.scene} ({len(scene.train_indices)} training / {len(scene.test_indices)} held-out views, "
           f"{scene.cameras[0].width}x{scene.cameras[0].height}); model {trainer.n} vertices / {trainer.m} triangles; "
           f"from iteration {trainer.iteration} to {cfg.iterations} (loaded in {time.perf_counter() - t0:.1f}s)")
+    info = getattr(trainer, "init_info", None)
+    if info is not None:
+        carve = (f"{info.num_carved_faces:,} carved as free space by the training views' lines of sight"
+                 if cfg.carve and getattr(scene, "point_tracks", None) is not None else
+                 "none carved (" + ("--carve off" if not cfg.carve else "the scene has no SfM tracks") + ")")
+        print(f"initial mesh: {info.num_unique:,} points; Delaunay faces: {carve}, {info.num_long_faces:,} "
+              f"longer than {cfg.init_max_edge:g} spacings dropped")
     if cfg.topology:
         print(f"vertex cap: {trainer.topology.cap.vertices:,} ({trainer.topology.cap.why})")
     if normal_maps is not None:

@@ -136,8 +136,9 @@ class TrainConfig:
                           action="store_const", const=True)
     seed: int = option(0, "seed of the view order (nothing else is random)", flag="--seed",
                      check=integer(0, MAX_SEED), type=int)
-    sh_degree: int = option(3, "SH degree of the model's storage (the schedule raises the trained degree)",
-                            check=integer(0, SH_DEGREE_MAX))
+    sh_degree: int = option(3, "SH degree of the model's storage (the schedule raises the trained degree "
+                               "up to it); the exported mesh keeps only degree 0 (vertex colours)",
+                            flag="--sh-degree", check=integer(0, SH_DEGREE_MAX), type=int)
     background: tuple = option((0.0, 0.0, 0.0), "RGB behind the triangles (tsplus train: the scene's)",
                                check=rgb())
     near: float = option(NEAR, "near plane, in units of the camera radius (the scene is trained in a normalised frame)",
@@ -186,6 +187,10 @@ class TrainConfig:
         3.0, "drop initial Delaunay faces whose longest edge exceeds this many local point spacings (distance to "
              "the 8th nearest point): the faces that span free space and train into shards (0: keep all)",
         flag="--init-max-edge", check=real(0.0), type=float)
+    carve: bool = option(
+        True, "carve the initial Delaunay mesh with the SfM tracks: drop the faces that a segment from a training "
+              "camera to a point it observed crosses (free space; tsplus_wgpu/train/carve.py). Scenes without "
+              "tracks are not carved", flag="--carve", check=boolean(), choices=["on", "off"])
     hard_prune: bool = option(True, "ablation: False drops the opacity criterion of pruning",
                              check=boolean())
     weight_prune: bool = option(True, "ablation: False drops the blending-weight criterion of pruning",
@@ -229,7 +234,7 @@ class TrainConfig:
     #: fields that must match for ``--resume`` (the others may change between sessions)
     RESUME_KEYS = ("iterations", "quick", "indoor", "seed", "sh_degree", "background", "near", "opacity_reg",
                    "topology", "max_vertices", "vertex_budget", "densify_stop_rel", "densify_stop_windows",
-                   "quick_topology_epochs", "quick_opacity_lr_scale", "shell", "init_max_edge", "hard_prune",
+                   "quick_topology_epochs", "quick_opacity_lr_scale", "shell", "init_max_edge", "carve", "hard_prune",
                    "weight_prune", "sigma_decay", "sigma_final", "opacity", "normals")
 
 

@@ -56,6 +56,7 @@ class InitInfo:
     num_dropped: int       # unique points in no face (removed)
     num_degenerate_faces: int
     num_long_faces: int = 0    # dropped by ``max_edge_ratio``
+    num_carved_faces: int = 0  # crossed by camera-to-point rays (``visibility``)
 
 
 def _check(name, arr, cols):
@@ -88,11 +89,18 @@ def _delaunay2d(pts, vt, centre):
     return np.sort(np.asarray(tri.simplices, np.int64), axis=1)
 
 
-def delaunay_faces(points, flat_tol=FLAT_TOL):
+def delaunay_faces(points, flat_tol=FLAT_TOL, return_delaunay=False):
     """Triangles of the Delaunay tetrahedralisation of distinct ``points`` [N, 3].
 
-    Returns ``(faces [M, 3] int64, method)``; see the module docstring for the degenerate cases.
+    Returns ``(faces [M, 3] int64, method)``, plus scipy's ``Delaunay`` (None on the 2-D and
+    single-triangle routes) with ``return_delaunay``; see the module docstring for the
+    degenerate cases.
     """
+    faces, method, tri = _delaunay_faces(points, flat_tol)
+    return (faces, method, tri) if return_delaunay else (faces, method)
+
+
+def _delaunay_faces(points, flat_tol):
     pts = np.asarray(points, np.float64)
     n = pts.shape[0]
     if n < 3:
@@ -101,17 +109,17 @@ def delaunay_faces(points, flat_tol=FLAT_TOL):
     if s[0] == 0 or s[1] <= flat_tol * s[0]:
         raise ValueError(f"points: all {n} distinct points lie on one line; no triangle can be formed")
     if n == 3:
-        return np.array([[0, 1, 2]], np.int64), "single"
+        return np.array([[0, 1, 2]], np.int64), "single", None
     if s[2] <= flat_tol * s[0]:
-        return _delaunay2d(pts, vt, centre), "delaunay2d"
+        return _delaunay2d(pts, vt, centre), "delaunay2d", None
     for opts, method in (("Qbb Qc Qz Q12", "delaunay3d"), ("QJ Qbb Qz", "delaunay3d-QJ")):
         try:
             tri = Delaunay(pts, qhull_options=opts)
         except QhullError:
             continue
         if len(tri.simplices):
-            return _faces_of_tets(tri.simplices), method
-    return _delaunay2d(pts, vt, centre), "delaunay2d"
+            return _faces_of_tets(tri.simplices), method, tri
+    return _delaunay2d(pts, vt, centre), "delaunay2d", None
 
 
 def local_spacing(points, k=SPACING_NEIGHBOUR):
@@ -133,8 +141,23 @@ def long_faces(points, faces, max_edge_ratio):
     return edge > float(max_edge_ratio) * np.median(local_spacing(p)[f], axis=1)
 
 
+def _carve(uniq, faces, tri, inverse, visibility):
+    """``(faces, number carved)``: ``faces`` less those the observations cross (:mod:`.carve`);
+    none carved without a 3-D tetrahedralisation or rays, and never every face."""
+    if visibility is None or tri is None or not len(visibility[0]):
+        return faces, 0
+    from .carve import carve_mask
+    ray_pt, origins = visibility
+    cfaces, carved, _ = carve_mask(uniq, tri, inverse[np.asarray(ray_pt, np.int64)], origins)
+    if cfaces.shape != faces.shape or not np.array_equal(cfaces, faces):
+        raise RuntimeError("carve: the tetrahedralisation's faces do not match")   # same construction
+    if carved.all():
+        return faces, 0
+    return faces[~carved], int(np.count_nonzero(carved))
+
+
 def init_from_points(points, colors=None, sh_degree=3, opacity=INIT_OPACITY, flat_tol=FLAT_TOL,
-                     return_info=False, max_edge_ratio=None):
+                     return_info=False, max_edge_ratio=None, visibility=None):
     """The initial :class:`~tsplus_wgpu.TriangleModel` from SfM points.
 
     Args:
@@ -147,6 +170,8 @@ def init_from_points(points, colors=None, sh_degree=3, opacity=INIT_OPACITY, fla
         max_edge_ratio: drop faces longer than this many local point spacings (see the module
             docstring; None or 0: keep every face). Never drops every face: if it would, the
             filter is not applied.
+        visibility: ``(ray_pt [R], origins [R, 3])``: observations (a row of ``points``, the
+            observing camera's centre); faces the segments cross are carved (:mod:`.carve`).
 
     Returns:
         a TriangleModel whose vertices are the distinct points used by a face and whose
@@ -174,7 +199,8 @@ def init_from_points(points, colors=None, sh_degree=3, opacity=INIT_OPACITY, fla
     ucol = np.stack([np.bincount(inverse, weights=cols[:, c], minlength=len(uniq)) for c in range(3)], 1).astype(np.float64)
     ucol /= np.maximum(counts, 1.0)[:, None]
 
-    faces, method = delaunay_faces(uniq, flat_tol)
+    faces, method, tri = delaunay_faces(uniq, flat_tol, return_delaunay=True)
+    faces, num_carved = _carve(uniq, faces, tri, inverse, visibility)
 
     # Drop zero-area faces.
     a, b, c = uniq[faces[:, 0]], uniq[faces[:, 1]], uniq[faces[:, 2]]
@@ -206,6 +232,6 @@ def init_from_points(points, colors=None, sh_degree=3, opacity=INIT_OPACITY, fla
     if return_info:
         info = InitInfo(method=method, num_input=len(pts), num_unique=len(uniq),
                         num_dropped=int(np.count_nonzero(~used)), num_degenerate_faces=num_degenerate,
-                        num_long_faces=num_long)
+                        num_long_faces=num_long, num_carved_faces=num_carved)
         return model, info
     return model

@@ -18,9 +18,10 @@ parameters, and a resumed run equals the uninterrupted one bit for bit.
 
 Beyond the step:
 
-* The initial mesh (no ``model`` given): the Delaunay faces of the scene's points without the
-  long ones (:func:`~.init.init_from_points`, ``config.init_max_edge``), plus the background
-  shell (:mod:`.shell`, ``config.shell``) whose triangles the prunes leave alone (``self.groups``).
+* The initial mesh (no ``model`` given, :func:`~.initial.initial_model`): the Delaunay faces of
+  the scene's points, carved along the training cameras' lines of sight (``config.carve``) and
+  without the long ones (``config.init_max_edge``), plus the background shell (:mod:`.shell`,
+  ``config.shell``) whose triangles the prunes leave alone (``self.groups``).
 * Topology (prune, densify, the densification stop, :func:`~.strategy.vertex_cap`) is
   :class:`~.strategy.TopologyStrategy`; each topology step is one host round trip
   (:meth:`Trainer.apply_topology`: read the :class:`~.state.VertexState`, map it through the pure
@@ -54,8 +55,8 @@ from ..render.device_model import DeviceModel
 from ..types import TriangleModel
 from .checkpoint import CheckpointError, read_checkpoint, resume_config, write_checkpoint
 from .config import TrainConfig
-from .init import SH_C0, init_from_points
-from .shell import background_shell, with_shell
+from .init import SH_C0
+from .initial import initial_model
 from .losses import ImageLoss
 from .loop import TrainLoop
 from .normals import NormalLoss, loss_from_render
@@ -71,7 +72,7 @@ class Trainer:
         scene: the scene (cameras, images, points, train/test split).
         config: a :class:`TrainConfig`.
         renderer: a :class:`~tsplus_wgpu.Renderer` (default: a new one on the best adapter).
-        model: an initial :class:`TriangleModel` in world units (default: :func:`init_from_points`
+        model: an initial :class:`TriangleModel` in world units (default: :func:`~.initial.initial_model`
             of the scene's points and colours).
         normals: normal priors for the normal loss: a :class:`~tsplus_wgpu.data.normals.NormalMaps`
             or a list with one ``(prior [H, W, 3], valid [H, W])`` or None per view (default: read
@@ -92,17 +93,9 @@ class Trainer:
         self.sched = config.schedule(views=len(scene.train_indices))
         self.renderer = renderer if renderer is not None else Renderer()
         self.ctx = c = self.renderer.ctx
+        self.init_info = None      # the points mesh's InitInfo (carved / long faces), when built here
         if model is None:
-            if scene.points is None or len(scene.points) < 3:
-                raise ValueError("scene: it has no initial points (need at least 3 to triangulate)")
-            model = init_from_points(scene.points, scene.point_colors, sh_degree=config.sh_degree,
-                                     max_edge_ratio=config.init_max_edge or None)
-            shell = None
-            if config.shell:
-                shell = background_shell([scene.cameras[i] for i in scene.train_indices],
-                                         [scene.images[i] for i in scene.train_indices], scene.points,
-                                         sh_degree=config.sh_degree)
-            model, groups = with_shell(model, shell)
+            model, groups, self.init_info = initial_model(scene, config)
         else:
             model = self.frame.model_to_frame(model)
         self.train_views = list(scene.train_indices)

@@ -18,7 +18,10 @@ At a topology step (every 500 iterations, scaled with ``quick``; one host round 
    front of the near plane) > 1400 [1300]; thr = ``Schedule.prune_threshold``. Triangles of the
    background shell (:mod:`..shell`, group ``SHELL``) are exempt from the opacity and weight
    tests: they are the backdrop that keeps pixels covered while the surface in front is still
-   semi-transparent (the final cleanup's weight test still applies to them). The **hard
+   semi-transparent (the final cleanup's weight test still applies to them). From the hard
+   prune on, a prune that applies the weight test also deletes the shell triangles hidden
+   behind the surfaces (max weight <= :data:`SHELL_HIDDEN` in every training view): they
+   would only hold vertices and time until the final cleanup. The **hard
    prune** (``is_hard_prune_step``, 5000) is the opacity criterion (the paper's "remove all
    triangles with opacity below T_o"); it is also part of every regular prune, so at 5000 the
    two coincide. The weight criterion needs the maximum over *all* training views: when the
@@ -70,6 +73,10 @@ import numpy as np
 from ...kernels.topology import MaxWeightAccumulate
 from ..schedules import opacity_from_logit
 from ..shell import SHELL
+
+#: max blending weight (over every training view since the last reset) at or below which a
+#: shell triangle counts as hidden (1/255: under one step of an 8-bit image)
+SHELL_HIDDEN = 1.0 / 255.0
 from . import ops
 from .cap import VertexCap
 
@@ -242,8 +249,12 @@ class TopologyStrategy:
             rec["weight_prune_skipped"] = "not every training view rendered since the last reset"
         shell = state.group_of() == SHELL      # the backdrop: kept by the opacity and weight tests
         if shell.any():
-            rec["shell_kept"] = int((drop & shell).sum())
-            drop &= ~shell
+            # ... unless hidden: from the hard prune on, a shell triangle that no training view
+            # saw with a weight above SHELL_HIDDEN since the last reset is behind the surfaces
+            hidden = shell & (mw <= SHELL_HIDDEN) if reset and it >= s.floor_start() else np.zeros_like(shell)
+            rec["shell_kept"] = int((drop & shell & ~hidden).sum())
+            rec["shell_hidden"] = int(hidden.sum())
+            drop = (drop & ~shell) | hidden
         big = ops.projected_sizes(state.positions, tris, cameras, self.near) > s.prune_max_size()
         rec["pruned_size"] = int((big & ~drop).sum())
         drop |= big
