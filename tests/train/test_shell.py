@@ -149,6 +149,11 @@ def test_prune_keeps_the_shell():
     drop, _ = s.prune_mask(hidden, it, [0], cams, rec)
     assert drop[2]                  # (the heaviest surface triangle stays: never an empty model)
     assert rec["shell_hidden"] == 1 and rec["shell_kept"] == 0
+    # ... but not one that no view can show: nothing says it is hidden (the backdrop of other viewpoints)
+    away = [_look_at((0.5, 0.5, 0), (0.5, 0.5, -5))]
+    rec = {}
+    drop, _ = s.prune_mask(hidden, it, [0], away, rec)
+    assert not drop[2] and rec["shell_hidden"] == 0
     before = sched.floor_start() - sched.topology_every()
     assert sched.is_prune_step(before)
     s.seen = {0}
@@ -181,3 +186,21 @@ def test_trainer_starts_with_the_shell_and_checkpoints_its_groups(renderer, tmp_
     assert back.read_state().groups.dtype == np.int8
     off = Trainer(tiny, TrainConfig(iterations=4, quick=True, topology=False, shell=False), renderer=renderer)
     assert not (off.read_state().group_of() == SHELL).any() and off.m < t.m
+
+
+def test_in_views_and_the_backdrop_beyond_them():
+    """A triangle counts as shown when a vertex or its centroid projects inside the image in
+    front of the camera; the final cleanup keeps the shell triangles no training view shows."""
+    from tsplus_wgpu.train.shell import beyond_views
+    cam = _look_at((0, 0, 0), (0, 0, 10))          # 40x30 px, f 30: x/z within +-0.667 is inside
+    pos = np.array([[0, 0, 5], [1, 0, 5], [0, 1, 5],                  # 0: inside
+                    [4.0, -0.5, 5], [4.2, 0.5, 5], [-4.0, 0.0, 5],    # 1: vertices outside, centroid inside
+                    [9, 9, 5], [10, 9, 5], [9, 10, 5],                # 2: outside
+                    [0, 0, -5], [0.1, 0, -5], [0, 0.1, -5]], float)   # 3: behind the camera
+    tris = np.arange(12).reshape(4, 3)
+    np.testing.assert_array_equal(ops.in_views(pos, tris, [cam]), [True, True, False, False])
+    back = _look_at((0, 0, 0), (0, 0, -10))
+    np.testing.assert_array_equal(ops.in_views(pos, tris, [cam, back]), [True, True, False, True])
+    groups = np.array([SURFACE, SHELL, SHELL, SURFACE], np.int8)
+    np.testing.assert_array_equal(beyond_views(groups, pos, tris, [cam], 0.01), [False, False, True, False])
+    assert not beyond_views(None, pos, tris, [cam], 0.01).any()

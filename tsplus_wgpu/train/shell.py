@@ -165,3 +165,17 @@ def with_shell(model, shell):
 
 
 __all__ = ["SURFACE", "SHELL", "icosphere", "shell_radius", "shell_level", "background_shell", "with_shell"]
+
+
+def beyond_views(groups, positions, triangles, cameras, near):
+    """``[M]`` bool: the shell triangles that none of ``cameras`` can show (outside every image
+    or behind every camera; :func:`.strategy.ops.in_views`). No training view constrains them,
+    so the final cleanup keeps them as the backdrop of other viewpoints. All False without groups."""
+    out = np.zeros(len(triangles), bool)
+    if groups is None:
+        return out
+    from .strategy.ops import in_views
+    shell = np.flatnonzero(np.asarray(groups) == SHELL)
+    out[shell] = ~in_views(positions, np.asarray(triangles)[shell], cameras, near)
+    return out
+

@@ -57,6 +57,7 @@ from .checkpoint import CheckpointError, read_checkpoint, resume_config, write_c
 from .config import TrainConfig
 from .init import SH_C0
 from .initial import initial_model
+from .shell import beyond_views
 from .losses import ImageLoss
 from .loop import TrainLoop
 from .normals import NormalLoss, loss_from_render
@@ -448,7 +449,8 @@ class Trainer:
 
     def final_mesh(self):
         """method.md's end of training: render every training view with the trained model,
-        delete triangles whose max blending weight <= 0.5 and the vertices no triangle uses;
+        delete triangles whose max blending weight <= 0.5 (but not the shell's beyond every
+        training view's image: the backdrop of other viewpoints) and the vertices no triangle uses;
         then drop sigma and opacity. Returns ``(positions [V, 3] in world units, triangles [F, 3],
         colors [V, 3] in [0, 1] from SH DC)``."""
         sigma = self.sched.sigma(self.iteration)
@@ -460,7 +462,9 @@ class Trainer:
                                         self.config.background, self.config.near)
             mw = np.maximum(mw, res.max_weight)
         model = self.current_model()
-        keep = mw > FINAL_PRUNE_WEIGHT
+        pos = self.ctx.read(self.params["positions"], np.float32, 3 * self.n).reshape(self.n, 3)
+        keep = (mw > FINAL_PRUNE_WEIGHT) | beyond_views(self.groups, pos, self.triangles_host, [
+            self.scene.cameras[v] for v in self.train_views], self.config.near)   # the backdrop of other viewpoints
         tris = model.triangles[keep]
         used = np.zeros(model.num_vertices, bool)
         used[tris.ravel()] = True

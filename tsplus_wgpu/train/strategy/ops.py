@@ -43,6 +43,19 @@ def projected_sizes(positions, triangles, cameras, near=0.01):
     return out
 
 
+def in_views(positions, triangles, cameras, near=0.01):
+    """``[M]`` bool: some vertex or the centroid of each triangle projects inside the image of
+    one of ``cameras`` at camera z > ``near`` (a triangle none of them can show is False)."""
+    p = np.asarray(positions, np.float64)
+    t = np.asarray(triangles, np.int64)
+    pts = np.concatenate([p[t].reshape(-1, 3), p[t].mean(axis=1)])       # 3 vertices, then the centroid
+    seen = np.zeros(len(pts), bool)
+    for cam in cameras:
+        uv, z = cam.project(pts)
+        seen |= (z > near) & (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] <= cam.height)
+    return seen[:3 * len(t)].reshape(-1, 3).any(axis=1) | seen[3 * len(t):]
+
+
 def remove_unused_vertices(triangles, num_vertices):
     """Returns ``(triangles with compacted indices, old_from_new [V'])``; vertex order kept."""
     t = np.asarray(triangles, np.int64).reshape(-1, 3)

@@ -20,8 +20,8 @@ At a topology step (every 500 iterations, scaled with ``quick``; one host round 
    tests: they are the backdrop that keeps pixels covered while the surface in front is still
    semi-transparent (the final cleanup's weight test still applies to them). From the hard
    prune on, a prune that applies the weight test also deletes the shell triangles hidden
-   behind the surfaces (max weight <= :data:`SHELL_HIDDEN` in every training view): they
-   would only hold vertices and time until the final cleanup. The **hard
+   behind the surfaces (inside some training view's image, with max weight <=
+   :data:`SHELL_HIDDEN` in every one): they would only hold vertices and time. The **hard
    prune** (``is_hard_prune_step``, 5000) is the opacity criterion (the paper's "remove all
    triangles with opacity below T_o"); it is also part of every regular prune, so at 5000 the
    two coincide. The weight criterion needs the maximum over *all* training views: when the
@@ -251,7 +251,10 @@ class TopologyStrategy:
         if shell.any():
             # ... unless hidden: from the hard prune on, a shell triangle that no training view
             # saw with a weight above SHELL_HIDDEN since the last reset is behind the surfaces
-            hidden = shell & (mw <= SHELL_HIDDEN) if reset and it >= s.floor_start() else np.zeros_like(shell)
+            hidden = np.zeros_like(shell)
+            if reset and it >= s.floor_start():      # (one no view can show is the backdrop of other views)
+                hidden[shell] = mw[shell] <= SHELL_HIDDEN
+                hidden[hidden] = ops.in_views(state.positions, tris[hidden], cameras, self.near)
             rec["shell_kept"] = int((drop & shell & ~hidden).sum())
             rec["shell_hidden"] = int(hidden.sum())
             drop = (drop & ~shell) | hidden
