@@ -32,7 +32,7 @@ from ..io.atomic import describe, remove_orphans, write_bytes, write_error, writ
 from ..train.config import TrainConfig, check_settings, cli_options, preset_defaults
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
-_FROM_FLAG = {"topology": lambda v: v == "on", "shell": lambda v: v == "on", "carve": lambda v: v == "on", "normals": lambda v: str(Path(v).resolve())}
+_FROM_FLAG = {"topology": lambda v: v == "on", "shell": lambda v: v == "on", "carve": lambda v: v == "on", "final_prune": lambda v: v == "on", "normals": lambda v: str(Path(v).resolve())}
 
 #: the most pixels of a training image when ``tsplus train`` picks the downscale for a CPU adapter.
 #: Measured: the cup at 200x150 (30,000 pixels), quick preset, 3000 iterations, trained in 13 min

@@ -191,6 +191,11 @@ class TrainConfig:
         True, "carve the initial Delaunay mesh with the SfM tracks: drop the faces that a segment from a training "
               "camera to a point it observed crosses (free space; tsplus_wgpu/train/carve.py). Scenes without "
               "tracks are not carved", flag="--carve", check=boolean(), choices=["on", "off"])
+    final_prune: bool = option(
+        False, "on: the end of training deletes the triangles no training view sees with a blending weight above "
+               "0.5 (the paper's cleanup, method.md); off keeps those hidden triangles in the exported mesh, where "
+               "other viewpoints see them (docs/training.md#end-of-training)", flag="--final-prune", check=boolean(),
+        choices=["on", "off"])
     hard_prune: bool = option(True, "ablation: False drops the opacity criterion of pruning",
                              check=boolean())
     weight_prune: bool = option(True, "ablation: False drops the blending-weight criterion of pruning",

@@ -449,14 +449,14 @@ class Trainer:
 
     def final_mesh(self):
         """method.md's end of training: render every training view with the trained model,
-        delete triangles whose max blending weight <= 0.5 (but not the shell's beyond every
-        training view's image: the backdrop of other viewpoints) and the vertices no triangle uses;
+        delete triangles whose max blending weight <= 0.5 (``config.final_prune``; never the shell's
+        beyond every training view's image: the backdrop of other viewpoints) and unused vertices;
         then drop sigma and opacity. Returns ``(positions [V, 3] in world units, triangles [F, 3],
         colors [V, 3] in [0, 1] from SH DC)``."""
         sigma = self.sched.sigma(self.iteration)
         ss = self.sched.supersample(self.iteration)     # as the last training steps rendered
-        mw = np.zeros(self.m, np.float32)
-        for v in self.train_views:
+        mw = np.full(self.m, np.inf if not self.config.final_prune else 0.0, np.float32)  # off: all kept
+        for v in self.train_views if self.config.final_prune else ():
             cam = self.scene.cameras[v]
             res = self.renderer.forward(self.model, supersampled_camera(cam, self.fit_supersample(cam, ss)), sigma,
                                         self.config.background, self.config.near)
