@@ -188,9 +188,10 @@ class TrainConfig:
              "the 8th nearest point): the faces that span free space and train into shards (0: keep all)",
         flag="--init-max-edge", check=real(0.0), type=float)
     carve: bool = option(
-        True, "carve the initial Delaunay mesh with the SfM tracks: drop the faces that a segment from a training "
-              "camera to a point it observed crosses (free space; tsplus_wgpu/train/carve.py). Scenes without "
-              "tracks are not carved", flag="--carve", check=boolean(), choices=["on", "off"])
+        False, "carve the initial Delaunay mesh with the SfM tracks: drop the faces that a segment from a training "
+               "camera to a point it observed crosses (free space; tsplus_wgpu/train/carve.py). Off by default: "
+               "measured +0.4/+0.8 dB on fox/lund but -0.6/-0.2 dB on cup/office (docs/measurements.md)",
+        flag="--carve", check=boolean(), choices=["on", "off"])
     final_prune: bool = option(
         False, "on: the end of training deletes the triangles no training view sees with a blending weight above "
                "0.5 (the paper's cleanup, method.md); off keeps those hidden triangles in the exported mesh, where "
