@@ -336,7 +336,7 @@ def _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded=None):
     info = getattr(trainer, "init_info", None)
     if info is not None:
         carve = (f"{info.num_carved_faces:,} carved as free space by the training views' lines of sight"
-                 if cfg.carve and getattr(scene, "point_tracks", None) is not None else
+                 if cfg.carve and scene.point_tracks is not None else
                  "none carved (" + ("--carve off" if not cfg.carve else "the scene has no SfM tracks") + ")")
         print(f"initial mesh: {info.num_unique:,} points; Delaunay faces: {carve}, {info.num_long_faces:,} "
               f"longer than {cfg.init_max_edge:g} spacings dropped")

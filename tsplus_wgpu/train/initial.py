@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..data.tracks import rays
 from .init import init_from_points
 from .shell import background_shell, with_shell
 
@@ -20,13 +21,12 @@ from .shell import background_shell, with_shell
 def training_rays(scene):
     """``(ray_pt [R], origins [R, 3])``: one row per observation of a point by a training
     view (the point's row in ``scene.points``, that camera's centre), or None without tracks."""
-    tracks = getattr(scene, "point_tracks", None)
+    tracks = scene.point_tracks
     if tracks is None or scene.points is None:
         return None
-    offsets, views = (np.asarray(a, np.int64) for a in tracks)
-    if len(offsets) != len(scene.points) + 1:
-        raise ValueError(f"scene: point_tracks has {len(offsets) - 1} tracks for {len(scene.points)} points")
-    ray_pt = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+    if len(tracks[0]) != len(scene.points) + 1:
+        raise ValueError(f"scene: point_tracks has {len(tracks[0]) - 1} tracks for {len(scene.points)} points")
+    ray_pt, views = rays(tracks)
     train = np.zeros(len(scene.cameras), bool)
     train[list(scene.train_indices)] = True
     ok = train[views]
