@@ -29,9 +29,10 @@ PRESENT_SHADER = "viewer_present"
 # ---------------------------------------------------------------------------- sources
 class ModelSource:
     """A :class:`TriangleModel` uploaded once: positions f32 [N, 3], SH f32 [N, K, 3]
-    (the mesh draws its DC row), triangles u32 [M, 3]."""
+    (the mesh draws its DC row), triangles u32 [M, 3]. ``colors`` [N, 3]: the mesh file's own
+    vertex colours (fitted to the photos by ``tsplus train``), drawn in mesh mode instead of SH DC."""
 
-    def __init__(self, renderer: Renderer, model: TriangleModel, sigma=None, stats=None):
+    def __init__(self, renderer: Renderer, model: TriangleModel, sigma=None, stats=None, colors=None):
         dev = renderer.ctx.device
         self.renderer = renderer
         self.model = model
@@ -45,6 +46,10 @@ class ModelSource:
                             sh=up(model.sh.astype(np.float32)),
                             triangles=up(model.triangles.astype(np.uint32)))
         self.num_vertices, self.num_triangles, self.sh_size = model.num_vertices, model.num_triangles, model.sh_size
+        self.mesh_sh_size = self.sh_size
+        if colors is not None and len(colors) == model.num_vertices:
+            # plain RGB rows (the mesh pipeline's 12-byte colour attribute, sh_size None)
+            self.buffers["mesh_sh"], self.mesh_sh_size = up(np.clip(colors, 0.0, 1.0).astype(np.float32)), None
         self.sigma = sigma
         self.stats = dict(stats or {})
         self._device_model = None
@@ -187,8 +192,9 @@ class FrameRenderer:
         elif mode == "wire":
             self._record_wire(encoder, color_view, camera, source, near)
         else:
-            self.mesh.draw(encoder, color_view, depth_view, camera, b["positions"], b["sh"], b["triangles"],
-                           source.num_triangles, sh_size=source.sh_size, near=near)
+            self.mesh.draw(encoder, color_view, depth_view, camera, b["positions"], b.get("mesh_sh", b["sh"]),
+                           b["triangles"], source.num_triangles,
+                           sh_size=getattr(source, "mesh_sh_size", source.sh_size), near=near)
         if self._hud is None:
             self.set_hud(["."])
             self._hud_size = (0, 0)

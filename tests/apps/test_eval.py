@@ -36,6 +36,33 @@ def test_eval_gt_mesh(gt_mesh, tmp_path, capsys):
     assert sorted(p.name for p in out.glob("view_*.png")) == ["view_000.png", "view_001.png"]
 
 
+def test_eval_and_export_use_the_meshs_own_colours(gt_mesh, tmp_path, capsys):
+    """A PLY whose vertex colour (what an engine draws) differs from its SH DC is evaluated with
+    the colour; `tsplus export` keeps it by default, `--bake dc` takes SH DC, and `--bake fit`
+    fits colours to the scene's training views that draw it as well as the true ones."""
+    from tsplus_wgpu.io.export import read_ply_colors
+    grey = tmp_path / "grey.ply"
+    model = demo_model(0)
+    export(model, grey, colors=np.full((model.num_vertices, 3), 0.5))
+    np.testing.assert_array_equal(read_ply_colors(grey), np.round(0.5 * 255) / 255)
+    psnr = {}
+    for name, mesh in (("gt", gt_mesh), ("grey", grey)):
+        out = tmp_path / f"ev-{name}"
+        assert main(["eval", str(mesh), "procedural:tiny", "--views", "all", "--supersample", "2", "--out", str(out),
+                     "--no-splat"]) == 0
+        psnr[name] = json.loads((out / "metrics.json").read_text())["mean_psnr"]
+    assert psnr["grey"] < psnr["gt"] - 5
+    for bake, args in (("mesh", []), ("dc", ["--bake", "dc"]), ("fit", ["--bake", "fit", "--scene", "procedural:tiny"])):
+        out = tmp_path / f"{bake}.ply"
+        assert main(["export", str(grey), "--out", str(out), *args]) == 0
+        assert main(["eval", str(out), "procedural:tiny", "--views", "all", "--supersample", "2", "--out",
+                     str(tmp_path / f"ev-{bake}"), "--no-splat"]) == 0
+        psnr[bake] = json.loads((tmp_path / f"ev-{bake}" / "metrics.json").read_text())["mean_psnr"]
+    capsys.readouterr()
+    assert abs(psnr["mesh"] - psnr["grey"]) < 1e-6 and abs(psnr["dc"] - psnr["gt"]) < 0.05
+    assert psnr["fit"] > psnr["gt"] - 0.5
+
+
 def _half_quad(cam, depth=2.0):
     """Two triangles covering exactly the left half of ``cam``'s image at camera depth ``depth``."""
     us, vs = [0.0, cam.width / 2, cam.width / 2, 0.0], [0.0, 0.0, cam.height, cam.height]

@@ -67,6 +67,19 @@ def test_offscreen_frame_equals_mesh_renderer(renderer):
         assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 50   # a real image, not a clear colour
 
 
+def test_mesh_file_colours_are_drawn(renderer):
+    """A run's own vertex colours (fitted by `tsplus train`) are what mesh mode draws, not SH DC."""
+    model = bench_mesh(2000, seed=4)
+    cam = _cam()
+    colors = np.random.default_rng(4).uniform(0, 1, (model.num_vertices, 3))
+    viewer = v.Viewer(v.ModelSource(renderer, model, colors=colors), [cam], offscreen=True, hud=False)
+    viewer.size = (cam.width, cam.height)
+    viewer.canvas.set_physical_size(cam.width, cam.height)
+    viewer.snap(0)
+    ref = MeshRenderer(renderer.ctx).render((model.positions, model.triangles, colors), cam).image
+    _assert_same(viewer.frame(), ref)
+
+
 def test_live_trainer_buffers_drawn_without_copy(renderer):
     """TrainerSource draws the trainer's own buffers (positions / SH rows of [N, 16, 3] /
     triangles), in the trainer's normalised frame, with its frame cameras (``t.scene.cameras``):

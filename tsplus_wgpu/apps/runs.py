@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.export import ExportError, read_mesh, read_ply
+from ..io.export import ExportError, read_mesh, read_ply, read_ply_colors
 from ..types import TriangleModel
 
 
@@ -44,7 +44,8 @@ def load_run(path):
     and opacity of ``checkpoint.npz`` attached to the vertices they came from when the
     checkpoint is there), a PLY / GLB / OBJ file, or a ``checkpoint.npz`` (every triangle, no
     final cleanup). Returns ``(TriangleModel, info dict)`` with ``info['scene']`` the run's
-    scene argument when known."""
+    scene argument when known and ``info['colors']`` the PLY's own vertex colours (what an
+    engine draws: ``tsplus train`` fits them to the photos) when it has them."""
     path = Path(path)
     if not path.exists():
         raise ExportError(f"{path}: no such run folder or mesh file")
@@ -69,6 +70,7 @@ def load_run(path):
             raise ExportError(f"{path}: not a tsplus run (no mesh.ply or checkpoint.npz)")
         mesh = read_ply(mesh_path)
         info["from"] = "mesh.ply"
+        info["colors"] = read_ply_colors(mesh_path)
         if ckpt.is_file():
             full, _ = checkpoint_model(ckpt)
             attached = _attach(mesh, full)
@@ -84,6 +86,7 @@ def load_run(path):
         return model, info
     if suffix == ".ply":
         info["from"] = "ply"
+        info["colors"] = read_ply_colors(path)
         return read_ply(path), info
     if suffix in (".glb", ".gltf", ".obj", ".off", ".stl"):
         info["from"] = suffix[1:]

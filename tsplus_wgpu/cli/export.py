@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..apps.runs import load_run
-from ..io.export import BAKES, FORMATS, ExportError, bake_views, connectivity, connectivity_line, export
+from ..io.export import BAKES, FORMATS, ExportError, bake_views, connectivity, connectivity_line, dc_colors, export
 from .scenes import add_images_arg, load_cli_scene
 
 
@@ -22,13 +22,42 @@ def add_parser(sub):
     p.add_argument("--format", default=None, help="ply, glb or obj (default: --out's extension, else ply)")
     p.add_argument("--out", default=None, help="output file (default: RUN/mesh_export.FORMAT, or beside the mesh)")
     p.add_argument("--y-up", action="store_true", help="convert the OpenCV world (y down) to y up: (x, -y, -z)")
-    p.add_argument("--bake", choices=BAKES, default="dc",
-                   help="vertex colour: dc (SH DC term, default) or views (averaged over the training views where "
-                        "the vertex is visible; needs the run's scene or --scene)")
+    p.add_argument("--bake", choices=BAKES, default="mesh",
+                   help="vertex colour: mesh (the mesh file's own colours: for a run, fitted to the training photos "
+                        "unless it was trained with --mesh-colors dc; SH DC for a checkpoint), dc (SH DC term), fit "
+                        "(least-squares fit to the training views through the depth-tested mesh) or views (photo "
+                        "averaged at each vertex over the training views that see it); fit and views need the run's "
+                        "scene or --scene")
     p.add_argument("--scene", default=None, help="scene for --bake views (default: the run's)")
     add_images_arg(p, help="image folder inside the scene for --bake views (default: the run's, else images)")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
     return p
+
+
+def _bake(args, model, info):
+    """``(colors [N, 3], description)`` for ``--bake fit`` or ``views``."""
+    scene_arg = args.scene or info.get("scene")
+    if not scene_arg:
+        raise ExportError(f"--bake {args.bake}: the run names no scene; give --scene")
+    images = args.images or (None if args.scene else info.get("images"))
+    scene = load_cli_scene(scene_arg, int(info.get("downscale") or 1) if not args.scene else 1, 0, images)
+    from ..render.mesh_renderer import MeshRenderer
+    mr = MeshRenderer(args.adapter)
+    views = list(scene.train_indices or range(len(scene.cameras)))
+    t0 = time.perf_counter()
+    if args.bake == "views":
+        colors, seen = bake_views(model, scene, views, mesh_renderer=mr)
+        print(f"baked colours from {len(views)} training views on {mr.adapter_name} in "
+              f"{time.perf_counter() - t0:.1f}s ({100 * np.mean(seen > 0):.1f}% of vertices seen; the others keep SH DC)")
+        return colors, "training views"
+    from ..render.mesh_fit import fit_vertex_colors
+    bg = info.get("background") or (0.0, 0.0, 0.0)
+    colors, fit = fit_vertex_colors(model.positions, model.triangles, [scene.cameras[v] for v in views],
+                                    [scene.images[v] for v in views], dc_colors(model), scene.frame().near_world(),
+                                    mr, background=tuple(float(x) for x in bg))
+    print(f"fitted colours to {len(views)} training views on {mr.adapter_name} in {time.perf_counter() - t0:.1f}s "
+          f"({100 * fit['observed'] / max(model.num_vertices, 1):.1f}% of vertices seen; the others keep SH DC)")
+    return colors, "a least-squares fit to the training views"
 
 
 def run(args):
@@ -44,24 +73,15 @@ def run(args):
     run = Path(args.run)
     out = Path(args.out) if args.out else (run / f"mesh_export.{fmt}" if run.is_dir()
                                            else run.with_name(f"{run.stem}_export.{fmt}"))
-    colors = None
-    if args.bake == "views":
-        scene_arg = args.scene or info.get("scene")
-        if not scene_arg:
-            raise ExportError("--bake views: the run names no scene; give --scene")
-        images = args.images or (None if args.scene else info.get("images"))
-        scene = load_cli_scene(scene_arg, int(info.get("downscale") or 1) if not args.scene else 1, 0, images)
-        from ..render.mesh_renderer import MeshRenderer
-        mr = MeshRenderer(args.adapter)
-        t0 = time.perf_counter()
-        colors, seen = bake_views(model, scene, mesh_renderer=mr)
-        print(f"baked colours from {len(scene.train_indices or scene.cameras)} training views on {mr.adapter_name} "
-              f"in {time.perf_counter() - t0:.1f}s ({100 * np.mean(seen > 0):.1f}% of vertices seen; the others keep "
-              f"SH DC)")
+    colors, source = info.get("colors"), "the mesh's colours"
+    if args.bake == "dc" or colors is None or len(colors) != model.num_vertices:
+        colors, source = None, "SH DC"
+    if args.bake in ("fit", "views"):
+        colors, source = _bake(args, model, info)
     export(model, out, fmt=fmt, colors=colors, y_up=args.y_up)
     print(f"{info.get('from', 'model')}: {model.num_vertices} vertices, {model.num_triangles} triangles, SH "
           f"{model.sh_size} coefficients")
     print(connectivity_line(connectivity(model.triangles, model.num_vertices)))
     print(f"wrote {out} ({fmt}, {out.stat().st_size} bytes{', y up' if args.y_up else ''}, colour from "
-          f"{'training views' if args.bake == 'views' else 'SH DC'})")
+          f"{source})")
     return 0

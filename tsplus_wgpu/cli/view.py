@@ -158,7 +158,7 @@ def run(args):
     bg = info.get("background") or (0.0, 0.0, 0.0)
     renderer = Renderer(args.adapter)
     source = v.ModelSource(renderer, model, sigma=SIGMA_FINAL if args.sigma is None else args.sigma,
-                           stats=_run_stats(args.path, model))
+                           stats=_run_stats(args.path, model), colors=info.get("colors"))
     if args.screenshot:
         if size is None and cameras and args.camera is not None:
             c = cameras[args.camera]

@@ -22,7 +22,7 @@ from ..types import SH_C0, TriangleModel
 from .atomic import write_bytes, write_error
 
 FORMATS = ("ply", "glb", "obj")
-BAKES = ("dc", "views")
+BAKES = ("mesh", "dc", "fit", "views")
 
 
 class ExportError(ValueError):
@@ -258,6 +258,20 @@ def read_ply(path) -> TriangleModel:
         raise
     except ValueError as exc:                   # truncated data, NaN vertices, bad indices, ...
         raise ExportError(f"{path}: {exc}; not a usable mesh") from None
+
+
+def read_ply_colors(path):
+    """``[N, 3]`` float64 in [0, 1]: the vertex colour (``red green blue``, what an engine
+    draws) of a binary PLY, or None where it has none or is not binary (then the model's SH
+    DC is its colour)."""
+    try:
+        parsed = _parse_binary_ply(Path(path).read_bytes())
+    except (OSError, ValueError):
+        return None
+    if parsed is None or not {"red", "green", "blue"} <= set(parsed[0].dtype.names):
+        return None
+    v = parsed[0]
+    return np.stack([v["red"], v["green"], v["blue"]], 1).astype(np.float64) / 255.0
 
 
 def _model_from_ply(path, data: bytes) -> TriangleModel:

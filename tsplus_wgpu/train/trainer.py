@@ -56,12 +56,12 @@ from ..types import TriangleModel
 from .checkpoint import CheckpointError, read_checkpoint, resume_config, write_checkpoint
 from .config import TrainConfig
 from .init import SH_C0
+from .final import final_mesh
 from .initial import initial_model
-from .shell import beyond_views
 from .losses import ImageLoss
 from .loop import TrainLoop
 from .normals import NormalLoss, loss_from_render
-from .schedules import FINAL_PRUNE_WEIGHT, SUPERSAMPLE_EVAL, logit_from_opacity
+from .schedules import SUPERSAMPLE_EVAL, logit_from_opacity
 from .state import PARAMS, VertexState
 from .strategy import TopologyStrategy, vertex_cap
 
@@ -447,30 +447,19 @@ class Trainer:
         return self.ctx.read(image, np.float32, 3 * camera.height * camera.width).reshape(camera.height,
                                                                                           camera.width, 3)
 
+    @property
+    def mesh_renderer(self):
+        """A :class:`~tsplus_wgpu.MeshRenderer` on the trainer's device, made on first use."""
+        if getattr(self, "_mesh_renderer", None) is None:
+            from ..render.mesh_renderer import MeshRenderer
+            self._mesh_renderer = MeshRenderer(self.ctx)
+        return self._mesh_renderer
+
     def final_mesh(self):
-        """method.md's end of training: render every training view with the trained model,
-        delete triangles whose max blending weight <= 0.5 (``config.final_prune``; never the shell's
-        beyond every training view's image: the backdrop of other viewpoints) and unused vertices;
-        then drop sigma and opacity. Returns ``(positions [V, 3] in world units, triangles [F, 3],
-        colors [V, 3] in [0, 1] from SH DC)``."""
-        sigma = self.sched.sigma(self.iteration)
-        ss = self.sched.supersample(self.iteration)     # as the last training steps rendered
-        mw = np.full(self.m, np.inf if not self.config.final_prune else 0.0, np.float32)  # off: all kept
-        for v in self.train_views if self.config.final_prune else ():
-            cam = self.scene.cameras[v]
-            res = self.renderer.forward(self.model, supersampled_camera(cam, self.fit_supersample(cam, ss)), sigma,
-                                        self.config.background, self.config.near)
-            mw = np.maximum(mw, res.max_weight)
-        model = self.current_model()
-        pos = self.ctx.read(self.params["positions"], np.float32, 3 * self.n).reshape(self.n, 3)
-        keep = (mw > FINAL_PRUNE_WEIGHT) | beyond_views(self.groups, pos, self.triangles_host, [
-            self.scene.cameras[v] for v in self.train_views], self.config.near)   # the backdrop of other viewpoints
-        tris = model.triangles[keep]
-        used = np.zeros(model.num_vertices, bool)
-        used[tris.ravel()] = True
-        new_from_old = np.cumsum(used) - 1
-        colors = np.clip(model.sh[:, 0] * SH_C0 + 0.5, 0.0, 1.0)
-        return model.positions[used], new_from_old[tris], colors[used]
+        """The exported mesh: ``(positions [V, 3] in world units, triangles [F, 3], colors [V, 3]
+        in [0, 1])`` after the end-of-training cleanup, colours fitted to the training photos or
+        from SH DC (:func:`.final.final_mesh`)."""
+        return final_mesh(self)
 
     @staticmethod
     def mesh_model(positions, triangles, colors):
