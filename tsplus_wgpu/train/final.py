@@ -4,7 +4,8 @@ method.md's cleanup renders every training view with the trained model and delet
 triangles whose max blending weight is <= 0.5 (``config.final_prune``, off by default: those
 triangles are the hidden layers other viewpoints see; never the shell's triangles beyond every
 training view's image, the backdrop of other viewpoints), then the unused vertices; sigma and
-opacity are dropped. The vertex colours are then either the SH DC term (``config.mesh_colors =
+opacity are dropped. Holes a training view still shows are filled with a fresh background shell's
+triangles (``config.fill_holes``, :func:`backdrop_fill`). The vertex colours are then either the SH DC term (``config.mesh_colors =
 'dc'``) or fitted to the training photos through the exported, depth-tested mesh (``'fit'``,
 :func:`~tsplus_wgpu.render.mesh_fit.fit_vertex_colors`): an engine draws one colour per
 vertex, and the SH DC term is the colour's mean over the whole sphere rather than over the
@@ -18,7 +19,7 @@ import numpy as np
 from ..kernels.loss import supersampled_camera
 from ..types import SH_C0
 from .schedules import FINAL_PRUNE_WEIGHT
-from .shell import beyond_views
+from .shell import background_shell, beyond_views
 
 #: samples per pixel side of the colour fit (reduced for large images, mesh_fit.MAX_SAMPLES)
 FIT_SUPERSAMPLE = 2
@@ -46,9 +47,49 @@ def final_mesh(trainer):
     new_from_old = np.cumsum(used) - 1
     tris = new_from_old[tris]
     colors = np.clip(model.sh[used, 0] * SH_C0 + 0.5, 0.0, 1.0)
+    pos_frame, pos_world = pos[used].astype(np.float64), model.positions[used]
+    t.final_info = dict(filled_triangles=0, color_fit=None)
+    if cfg.fill_holes:
+        add_pos, add_tri, add_col = backdrop_fill(t, pos_frame, tris)
+        if len(add_tri):
+            tris = np.concatenate([tris, add_tri + len(pos_frame)])
+            pos_frame = np.concatenate([pos_frame, add_pos])
+            pos_world = np.concatenate([pos_world, t.frame.to_world(add_pos)])
+            colors = np.concatenate([colors, add_col])
+        t.final_info["filled_triangles"] = int(len(add_tri))
     if cfg.mesh_colors == "fit" and len(tris):
-        colors = fitted_colors(t, pos[used], tris, colors)
-    return model.positions[used], tris, colors
+        colors = fitted_colors(t, pos_frame, tris, colors)
+    return pos_world, tris, colors
+
+
+def backdrop_fill(trainer, positions, triangles):
+    """``(positions [K, 3] (frame), triangles [F, 3] into them, colours [K, 3])``: the triangles
+    of a fresh background shell (:func:`~.shell.background_shell` of the training views) that
+    some training view shows through a hole of the mesh ``(positions, triangles)``, i.e. where
+    the depth-tested mesh draws nothing in front of them. Whatever the training left uncovered
+    in a training view (SfM found no points there, its triangles were pruned or moved away) is
+    drawn by the backdrop instead of the background colour; the colour fit then colours it."""
+    from ..render.mesh_fit import triangle_ids
+    t = trainer
+    cams = [t.scene.cameras[v] for v in t.train_views]
+    shell = background_shell(cams, [t.scene.images[v] for v in t.train_views], t.scene.points)
+    empty = np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3))
+    if shell is None:
+        return empty
+    m0 = len(triangles)
+    allpos = np.concatenate([positions, shell.positions])
+    alltri = np.concatenate([np.asarray(triangles, np.int64).reshape(-1, 3), shell.triangles + len(positions)])
+    seen = np.zeros(len(shell.triangles), bool)
+    for cam in cams:
+        ids = triangle_ids(t.mesh_renderer, allpos, alltri, cam, t.config.near)
+        seen[ids[ids >= m0] - m0] = True
+    if not seen.any():
+        return empty
+    tri = shell.triangles[seen]
+    used = np.zeros(shell.num_vertices, bool)
+    used[tri.ravel()] = True
+    col = np.clip(shell.sh[:, 0] * SH_C0 + 0.5, 0.0, 1.0)
+    return shell.positions[used], (np.cumsum(used) - 1)[tri], col[used]
 
 
 def fitted_colors(trainer, positions, triangles, prior):
@@ -60,5 +101,5 @@ def fitted_colors(trainer, positions, triangles, prior):
     colors, info = fit_vertex_colors(positions, triangles, [t.scene.cameras[v] for v in views],
                                      [t.scene.images[v] for v in views], prior, t.config.near, t.mesh_renderer,
                                      supersample=FIT_SUPERSAMPLE, background=t.config.background)
-    t.color_fit = info
+    t.final_info["color_fit"] = info
     return colors
