@@ -4,12 +4,12 @@ method.md's cleanup renders every training view with the trained model and delet
 triangles whose max blending weight is <= 0.5 (``config.final_prune``, off by default: those
 triangles are the hidden layers other viewpoints see; never the shell's triangles beyond every
 training view's image, the backdrop of other viewpoints), then the unused vertices; sigma and
-opacity are dropped. Holes a training view still shows are filled with a fresh background shell's
-triangles (``config.fill_holes``, :func:`backdrop_fill`). The vertex colours are then either the SH DC term (``config.mesh_colors =
-'dc'``) or fitted to the training photos through the exported, depth-tested mesh (``'fit'``,
-:func:`~tsplus_wgpu.render.mesh_fit.fit_vertex_colors`): an engine draws one colour per
-vertex, and the SH DC term is the colour's mean over the whole sphere rather than over the
-directions the photos saw.
+opacity are dropped. Holes a training view still shows are filled with a fresh background
+shell's triangles (``config.fill_holes``, :func:`backdrop_fill`). The vertex colours are then
+either the SH DC term (``config.mesh_colors = 'dc'``) or fitted to the training photos through
+the exported, depth-tested mesh (``'fit'``, :func:`~tsplus_wgpu.render.mesh_fit.fit_vertex_colors`):
+an engine draws one colour per vertex, and the SH DC term is the colour's mean over the whole
+sphere rather than over the directions the photos saw.
 """
 
 from __future__ import annotations
