@@ -215,7 +215,7 @@ def test_final_prune_off_keeps_every_triangle(renderer):
     kept = {}
     for on in (True, False):
         t = Trainer(tiny, TrainConfig(iterations=3, quick=True, topology=False, final_prune=on, fill_holes=False,
-                                      log_every=0),
+                                      remove_shards=False, log_every=0),
                     renderer=renderer)
         t.train(progress=False, checkpoint_at_end=False)
         kept[on] = len(t.final_mesh()[1])
@@ -247,3 +247,48 @@ def test_backdrop_fills_every_hole_of_the_training_views(renderer):
     n_off, m_off = len(meshes[False][0]), len(meshes[False][1])
     np.testing.assert_array_equal(meshes[True][1][:m_off], meshes[False][1])    # the mesh itself unchanged
     np.testing.assert_array_equal(meshes[True][0][:n_off], meshes[False][0])
+
+
+def test_a_shard_across_the_views_is_removed(renderer):
+    """A large magenta triangle between the first camera and the scene (a shard: it draws what
+    no photo shows) is removed at the end with --remove-shards on (what is behind it, and the
+    fill, take its pixels: the training views get closer), and kept with off. SH DC colours
+    here: the colour fit would paint a shard that only one view sees with that view's mean
+    colour; what the fit leaves to find_shards is measured on the real scenes."""
+    from tsplus_wgpu import MeshRenderer, TriangleModel
+    from tsplus_wgpu.data.procedural import load_procedural
+    from tsplus_wgpu.train.initial import initial_model
+    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    tiny = load_procedural("tiny")
+    cfg = dict(iterations=3, quick=True, topology=False, log_every=0, mesh_colors="dc")
+    model, groups, _ = initial_model(tiny, TrainConfig(**cfg))
+    cam = tiny.cameras[tiny.train_indices[0]]
+    c, centre = cam.center, np.zeros(3)
+    mid = c + 0.4 * (centre - c)
+    d = np.linalg.norm(centre - c)
+    a = np.cross(centre - c, [0.0, 0.0, 1.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(centre - c, a)
+    b /= np.linalg.norm(b)
+    shard = np.stack([mid + 0.3 * d * a, mid - 0.3 * d * a + 0.2 * d * b, mid - 0.2 * d * b])
+    n = model.num_vertices
+    sh = np.concatenate([model.sh, np.zeros((3,) + model.sh.shape[1:])])
+    sh[n:, 0] = (np.array([1.0, 0.0, 1.0]) - 0.5) / 0.28209479177387814
+    big = TriangleModel(np.concatenate([model.positions, shard]), np.concatenate([model.triangles, [[n, n + 1, n + 2]]]),
+                        sh, np.concatenate([model.opacity, np.full(3, 0.99)]))
+    big_groups = np.concatenate([groups, [0]]).astype(np.int8)
+    mr = MeshRenderer(renderer.ctx)
+    near = tiny.frame().near_world()
+    err, removed = {}, {}
+    for on in (False, True):
+        t = Trainer(tiny, TrainConfig(**cfg, remove_shards=on), renderer=renderer, model=big, groups=big_groups)
+        t.train(progress=False, checkpoint_at_end=False)
+        pos, tri, col = t.final_mesh()
+        removed[on] = t.final_info["shards"]
+        err[on] = np.mean([np.mean((mr.render((pos, tri, col), tiny.cameras[v], near=near).image - tiny.images[v]) ** 2)
+                           for v in tiny.train_indices])
+        # the shard's corners (moved a little by 3 steps) are in the mesh exactly when it is kept
+        gap = np.min(np.linalg.norm(pos[:, None, :] - shard[None], axis=2), axis=0).max()
+        assert (gap < 0.05 * d) == (not on), (on, gap)
+    assert removed[False] == 0 and removed[True] >= 1
+    assert err[True] < 0.9 * err[False]

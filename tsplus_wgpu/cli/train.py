@@ -32,7 +32,8 @@ from ..io.atomic import describe, remove_orphans, write_bytes, write_error, writ
 from ..train.config import TrainConfig, check_settings, cli_options, preset_defaults
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
-_FROM_FLAG = {"topology": lambda v: v == "on", "shell": lambda v: v == "on", "carve": lambda v: v == "on", "final_prune": lambda v: v == "on", "fill_holes": lambda v: v == "on", "normals": lambda v: str(Path(v).resolve())}
+_FROM_FLAG = {"topology": lambda v: v == "on", "shell": lambda v: v == "on", "carve": lambda v: v == "on", "final_prune": lambda v: v == "on", "fill_holes": lambda v: v == "on",
+             "remove_shards": lambda v: v == "on", "normals": lambda v: str(Path(v).resolve())}
 
 #: the most pixels of a training image when ``tsplus train`` picks the downscale for a CPU adapter.
 #: Measured: the cup at 200x150 (30,000 pixels), quick preset, 3000 iterations, trained in 13 min
@@ -361,7 +362,7 @@ def _finish(trainer, scene, out, ckpt, psnr0):
     _atomic_ply(out / "mesh.ply", pos, tri, col)
     fin = trainer.final_info
     print(f"exported mesh: {len(tri):,} triangles, {fin['filled_triangles']:,} of them a backdrop filling holes of the "
-          f"training views; vertex colours " + (f"fitted to {fin['color_fit']['views']} training views"
+          f"training views; {fin['shards']:,} shards removed; vertex colours " + (f"fitted to {fin['color_fit']['views']} training views"
                                                 if fin["color_fit"] else "from SH DC"))
     trainer.save_checkpoint(ckpt)
     soft_psnr, soft_ssim, _ = trainer.evaluate()

@@ -202,6 +202,11 @@ class TrainConfig:
               "of the exported mesh (where nothing is drawn), so the mesh covers every training view "
               "(tsplus_wgpu/train/final.py; held-out coverage 92.7 -> 99.9 percent on office)", flag="--fill-holes",
         check=boolean(), choices=["on", "off"])
+    remove_shards: bool = option(
+        True, "at the end, remove the shards of the exported mesh (surface triangles larger than 0.15 rad from the "
+              "nearest training camera whose pixels' error is over twice the mean), then fill and colour again "
+              "(tsplus_wgpu/train/final.py; +0.2 to +0.9 dB held-out on the four shared real captures)",
+        flag="--remove-shards", check=boolean(), choices=["on", "off"])
     mesh_colors: str = option(
         "fit", "vertex colours of the exported mesh: 'fit' solves for the colours that best reproduce the training "
                "photos through the exported, depth-tested mesh (linear least squares, tsplus_wgpu/render/"

@@ -5,7 +5,9 @@ triangles whose max blending weight is <= 0.5 (``config.final_prune``, off by de
 triangles are the hidden layers other viewpoints see; never the shell's triangles beyond every
 training view's image, the backdrop of other viewpoints), then the unused vertices; sigma and
 opacity are dropped. Holes a training view still shows are filled with a fresh background
-shell's triangles (``config.fill_holes``, :func:`backdrop_fill`). The vertex colours are then
+shell's triangles (``config.fill_holes``, :func:`backdrop_fill`); shards, large triangles that
+draw the training views badly, are removed and the fill and the colours made again
+(``config.remove_shards``, :func:`find_shards`). The vertex colours are
 either the SH DC term (``config.mesh_colors = 'dc'``) or fitted to the training photos through
 the exported, depth-tested mesh (``'fit'``, :func:`~tsplus_wgpu.render.mesh_fit.fit_vertex_colors`):
 an engine draws one colour per vertex, and the SH DC term is the colour's mean over the whole
@@ -19,15 +21,35 @@ import numpy as np
 from ..kernels.loss import supersampled_camera
 from ..types import SH_C0
 from .schedules import FINAL_PRUNE_WEIGHT
-from .shell import background_shell, beyond_views
+from .shell import SURFACE, background_shell, beyond_views
 
 #: samples per pixel side of the colour fit (reduced for large images, mesh_fit.MAX_SAMPLES)
 FIT_SUPERSAMPLE = 2
+#: a shard's angular size from the nearest training camera at least (rad; longest edge / distance)
+SHARD_ANGLE = 0.15
+#: and its pixels' mean squared error at least this many times the mean over all drawn pixels
+SHARD_RESIDUAL = 2.0
 
 
 def final_mesh(trainer):
     """``(positions [V, 3] in world units, triangles [F, 3], colors [V, 3] in [0, 1])`` of
     ``trainer``'s model (module docstring)."""
+    t, cfg = trainer, trainer.config
+    keep = cleanup_mask(t)
+    t.final_info = dict(filled_triangles=0, color_fit=None, shards=0)
+    mesh = _exported(t, keep)
+    if cfg.remove_shards and len(mesh[2]):
+        shards = find_shards(t, *mesh)
+        if shards.any():
+            t.final_info["shards"] = int(shards.sum())
+            mesh = _exported(t, keep & ~shards)
+    pos_frame, pos_world, tris, colors, _ = mesh
+    return pos_world, tris, colors
+
+
+def cleanup_mask(trainer):
+    """``[M]`` bool: the triangles method.md's cleanup keeps (all with ``final_prune`` off), and
+    always the shell's beyond every training view's image."""
     t, cfg = trainer, trainer.config
     sigma = t.sched.sigma(t.iteration)
     ss = t.sched.supersample(t.iteration)     # as the last training steps rendered
@@ -37,18 +59,23 @@ def final_mesh(trainer):
         res = t.renderer.forward(t.model, supersampled_camera(cam, t.fit_supersample(cam, ss)), sigma,
                                  cfg.background, cfg.near)
         mw = np.maximum(mw, res.max_weight)
+    return (mw > FINAL_PRUNE_WEIGHT) | beyond_views(t.groups, t.positions_frame(), t.triangles_host, [
+        t.scene.cameras[v] for v in t.train_views], t.config.near)   # the backdrop of other viewpoints
+
+
+def _exported(t, keep):
+    """The kept triangles with their vertices, the backdrop fill and the colours:
+    ``(positions in the frame, in world units, triangles, colours, source [F]: the trainer's
+    triangle each came from, -1 for the fill)``."""
+    cfg = t.config
     model = t.current_model()
-    pos = t.ctx.read(t.params["positions"], np.float32, 3 * t.n).reshape(t.n, 3)   # the trainer's frame
-    keep = (mw > FINAL_PRUNE_WEIGHT) | beyond_views(t.groups, pos, t.triangles_host, [
-        t.scene.cameras[v] for v in t.train_views], cfg.near)   # the backdrop of other viewpoints
+    source = np.flatnonzero(keep)
     tris = model.triangles[keep]
     used = np.zeros(model.num_vertices, bool)
     used[tris.ravel()] = True
-    new_from_old = np.cumsum(used) - 1
-    tris = new_from_old[tris]
+    tris = (np.cumsum(used) - 1)[tris]
     colors = np.clip(model.sh[used, 0] * SH_C0 + 0.5, 0.0, 1.0)
-    pos_frame, pos_world = pos[used].astype(np.float64), model.positions[used]
-    t.final_info = dict(filled_triangles=0, color_fit=None)
+    pos_frame, pos_world = t.positions_frame()[used].astype(np.float64), model.positions[used]
     if cfg.fill_holes:
         add_pos, add_tri, add_col = backdrop_fill(t, pos_frame, tris)
         if len(add_tri):
@@ -56,10 +83,45 @@ def final_mesh(trainer):
             pos_frame = np.concatenate([pos_frame, add_pos])
             pos_world = np.concatenate([pos_world, t.frame.to_world(add_pos)])
             colors = np.concatenate([colors, add_col])
+            source = np.concatenate([source, np.full(len(add_tri), -1)])
         t.final_info["filled_triangles"] = int(len(add_tri))
     if cfg.mesh_colors == "fit" and len(tris):
         colors = fitted_colors(t, pos_frame, tris, colors)
-    return pos_world, tris, colors
+    return pos_frame, pos_world, tris, colors, source
+
+
+def find_shards(trainer, pos_frame, pos_world, tris, colors, source):
+    """``[M]`` bool over the trainer's triangles: the shards of the exported mesh. A shard is a
+    surface triangle that looks large from the training cameras (longest edge over the distance
+    to the nearest training camera above :data:`SHARD_ANGLE` rad) and draws the training views
+    badly (its pixels' mean squared error, with the exported colours, above
+    :data:`SHARD_RESIDUAL` times the mean over every drawn pixel): a flat triangle across free
+    space shows different scene content in every view, so no colour fits it. Removing them lets
+    the backdrop fill and the colour fit take their pixels."""
+    from ..render.mesh_fit import triangle_ids
+    t = trainer
+    near = t.config.near
+    err, count, total, drawn = np.zeros(len(tris)), np.zeros(len(tris)), 0.0, 0
+    for v in t.train_views:
+        cam = t.scene.cameras[v]
+        ids = triangle_ids(t.mesh_renderer, pos_frame, tris, cam, near)
+        img = t.mesh_renderer.render((pos_frame, tris, colors), cam, near=near).image
+        r = np.mean((np.asarray(img, np.float64) - t.scene.images[v]) ** 2, axis=-1)
+        ok = ids >= 0
+        err += np.bincount(ids[ok], weights=r[ok], minlength=len(tris))
+        count += np.bincount(ids[ok], minlength=len(tris))
+        total, drawn = total + float(r[ok].sum()), drawn + int(ok.sum())
+    mean_err = np.where(count > 0, err / np.maximum(count, 1), 0.0)
+    centres = np.stack([t.scene.cameras[v].center for v in t.train_views])
+    p = pos_frame[tris]
+    edge = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
+    dist = np.min(np.linalg.norm(p.mean(axis=1)[:, None, :] - centres[None], axis=2), axis=1)
+    groups = t.groups if t.groups is not None else np.zeros(t.m, np.int8)
+    surface = (source >= 0) & (groups[np.maximum(source, 0)] == SURFACE)
+    bad = surface & (edge > SHARD_ANGLE * dist) & (mean_err > SHARD_RESIDUAL * total / max(drawn, 1))
+    out = np.zeros(t.m, bool)
+    out[source[bad]] = True
+    return out
 
 
 def backdrop_fill(trainer, positions, triangles):

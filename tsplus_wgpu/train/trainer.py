@@ -447,6 +447,10 @@ class Trainer:
         return self.ctx.read(image, np.float32, 3 * camera.height * camera.width).reshape(camera.height,
                                                                                           camera.width, 3)
 
+    def positions_frame(self) -> np.ndarray:
+        """``[N, 3]`` float32: the vertex positions as trained, in the trainer's frame (read back)."""
+        return self.ctx.read(self.params["positions"], np.float32, 3 * self.n).reshape(self.n, 3)
+
     @property
     def mesh_renderer(self):
         """A :class:`~tsplus_wgpu.MeshRenderer` on the trainer's device, made on first use."""
