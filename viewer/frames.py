@@ -49,7 +49,7 @@ class ModelSource:
         self.mesh_sh_size = self.sh_size
         if colors is not None and len(colors) == model.num_vertices:
             # plain RGB rows (the mesh pipeline's 12-byte colour attribute, sh_size None)
-            self.buffers["mesh_sh"], self.mesh_sh_size = up(np.clip(colors, 0.0, 1.0).astype(np.float32)), None
+            self.buffers["mesh_colors"], self.mesh_sh_size = up(np.clip(colors, 0.0, 1.0).astype(np.float32)), None
         self.sigma = sigma
         self.stats = dict(stats or {})
         self._device_model = None
@@ -192,7 +192,7 @@ class FrameRenderer:
         elif mode == "wire":
             self._record_wire(encoder, color_view, camera, source, near)
         else:
-            self.mesh.draw(encoder, color_view, depth_view, camera, b["positions"], b.get("mesh_sh", b["sh"]),
+            self.mesh.draw(encoder, color_view, depth_view, camera, b["positions"], b.get("mesh_colors", b["sh"]),
                            b["triangles"], source.num_triangles,
                            sh_size=getattr(source, "mesh_sh_size", source.sh_size), near=near)
         if self._hud is None:

@@ -16,7 +16,8 @@ from ..errors import UserError
 from ..io.atomic import write_json
 from ..apps.runs import load_run
 from ..io.export import ExportError, connectivity, connectivity_line
-from ..types import SH_C0, TriangleModel
+from ..train.trainer import Trainer
+from ..types import TriangleModel
 
 
 def add_parser(sub):
@@ -140,9 +141,10 @@ def run(args):
     # the exported mesh is drawn opaque with its vertex colours: the mesh file's own (what an engine
     # draws; fitted to the photos by `tsplus train`), else the SH DC term (view-independent)
     colors = None if args.baseline or run_arg is None else info.get("colors")
-    dc = model.sh[:, :1] if colors is None or len(colors) != model.num_vertices else \
-        ((np.asarray(colors, np.float64) - 0.5) / SH_C0)[:, None, :]
-    model = TriangleModel(model.positions, model.triangles, dc, np.ones(model.num_vertices))
+    if colors is None or len(colors) != model.num_vertices:
+        model = TriangleModel(model.positions, model.triangles, model.sh[:, :1], np.ones(model.num_vertices))
+    else:
+        model = Trainer.mesh_model(model.positions, model.triangles, colors)
     if model.num_triangles == 0:
         raise ExportError(f"{run_arg or 'baseline'}: the mesh has no triangles; nothing to evaluate")
     if args.views == "test":

@@ -32,8 +32,9 @@ from ..io.atomic import describe, remove_orphans, write_bytes, write_error, writ
 from ..train.config import TrainConfig, check_settings, cli_options, preset_defaults
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
-_FROM_FLAG = {"topology": lambda v: v == "on", "shell": lambda v: v == "on", "carve": lambda v: v == "on", "final_prune": lambda v: v == "on", "fill_holes": lambda v: v == "on",
-             "remove_shards": lambda v: v == "on", "normals": lambda v: str(Path(v).resolve())}
+_FROM_FLAG = {**{k: (lambda v: v == "on") for k in ("topology", "shell", "carve", "final_prune", "fill_holes",
+                                                    "remove_shards")},
+              "normals": lambda v: str(Path(v).resolve())}
 
 #: the most pixels of a training image when ``tsplus train`` picks the downscale for a CPU adapter.
 #: Measured: the cup at 200x150 (30,000 pixels), quick preset, 3000 iterations, trained in 13 min
@@ -356,30 +357,26 @@ def _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded=None):
 def _finish(trainer, scene, out, ckpt, psnr0):
     """Export the mesh (first: nothing optional before it), then the checkpoint, the
     evaluation, metrics.json (which marks the run finished) and the test renders."""
-    from ..io.metrics import psnr, ssim
+    from ..apps.evaluate import evaluate_mesh, mean_coverage
     from ..train.schedules import SUPERSAMPLE_EVAL
     pos, tri, col = trainer.final_mesh()
     _atomic_ply(out / "mesh.ply", pos, tri, col)
     fin = trainer.final_info
-    print(f"exported mesh: {len(tri):,} triangles, {fin['filled_triangles']:,} of them a backdrop filling holes of the "
-          f"training views; {fin['shards']:,} shards removed; vertex colours " + (f"fitted to {fin['color_fit']['views']} training views"
-                                                if fin["color_fit"] else "from SH DC"))
+    colours = f"fitted to {fin['color_fit']['views']} training views" if fin["color_fit"] else "from SH DC"
+    print(f"exported mesh: {len(tri):,} triangles, {fin['filled_triangles']:,} of them a backdrop filling holes of "
+          f"the training views; {fin['shards']:,} shards removed; vertex colours {colours}")
     trainer.save_checkpoint(ckpt)
     soft_psnr, soft_ssim, _ = trainer.evaluate()
     views = list(scene.test_indices or trainer.train_views)
     # the exported mesh as an engine draws it (depth-tested MeshRenderer, 4x4 samples): as `tsplus eval`
-    imgs, ps, ss, cov = [], [], [], []
-    for v in views:
-        res = trainer.mesh_renderer.render((pos, tri, col), scene.cameras[v], supersample=SUPERSAMPLE_EVAL,
-                                           background=tuple(trainer.config.background),
-                                           near=trainer.frame.near_world(trainer.config.near))
-        imgs.append(res.image)
-        ps.append(psnr(res.image, scene.images[v]))
-        ss.append(ssim(res.image, scene.images[v]))
-        cov.append(float(np.mean(res.coverage)))
-    psnr_m, ssim_m = float(np.mean(ps)), float(np.mean(ss))
+    imgs = []
+    rows = evaluate_mesh(trainer.mesh_model(pos, tri, col), scene, views, trainer.mesh_renderer, SUPERSAMPLE_EVAL,
+                         background=tuple(trainer.config.background),
+                         near=trainer.frame.near_world(trainer.config.near), renders=imgs)
+    psnr_m, ssim_m = (float(np.mean([r[k] for r in rows])) for k in ("psnr", "ssim"))
+    coverage = mean_coverage(rows)
     metrics = dict(iterations=trainer.iteration, held_out_views=views, held_out_are_training_views=not scene.test_indices,
-                   mesh_psnr=psnr_m, mesh_ssim=ssim_m, mesh_coverage=float(np.mean(cov)),
+                   mesh_psnr=psnr_m, mesh_ssim=ssim_m, mesh_coverage=coverage,
                    model_psnr=soft_psnr, model_ssim=soft_ssim,
                    initial_model_psnr=psnr0, mesh_vertices=int(len(pos)), mesh_triangles=int(len(tri)),
                    model_vertices=trainer.n, model_triangles=trainer.m, train_seconds=trainer.elapsed,
@@ -388,7 +385,7 @@ def _finish(trainer, scene, out, ckpt, psnr0):
     write_json(out / "metrics.json", metrics)
     for v, img in zip(views[:4], imgs[:4]):
         write_image(out / f"test_{v:03d}.png", np.concatenate([scene.images[v], img], axis=1))
-    print(f"held-out PSNR {psnr_m:.2f} dB / SSIM {ssim_m:.3f} / coverage {100 * np.mean(cov):.1f}% (the exported mesh, "
+    print(f"held-out PSNR {psnr_m:.2f} dB / SSIM {ssim_m:.3f} / coverage {100 * coverage:.1f}% (the exported mesh, "
           f"depth-tested: {len(pos)} vertices, {len(tri)} triangles); trained model {soft_psnr:.2f} dB"
           + (f" (initial {psnr0:.2f} dB)" if psnr0 is not None else ""))
     print(f"wrote {out}/mesh.ply, metrics.json, log.jsonl, checkpoint.npz, test_*.png")

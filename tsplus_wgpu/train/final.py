@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.loss import supersampled_camera
-from ..types import SH_C0
+from ..io.export import dc_colors
 from .schedules import FINAL_PRUNE_WEIGHT
 from .shell import SURFACE, background_shell, beyond_views
 
@@ -74,7 +74,7 @@ def _exported(t, keep):
     used = np.zeros(model.num_vertices, bool)
     used[tris.ravel()] = True
     tris = (np.cumsum(used) - 1)[tris]
-    colors = np.clip(model.sh[used, 0] * SH_C0 + 0.5, 0.0, 1.0)
+    colors = dc_colors(model)[used]
     pos_frame, pos_world = t.positions_frame()[used].astype(np.float64), model.positions[used]
     if cfg.fill_holes:
         add_pos, add_tri, add_col = backdrop_fill(t, pos_frame, tris)
@@ -150,8 +150,7 @@ def backdrop_fill(trainer, positions, triangles):
     tri = shell.triangles[seen]
     used = np.zeros(shell.num_vertices, bool)
     used[tri.ravel()] = True
-    col = np.clip(shell.sh[:, 0] * SH_C0 + 0.5, 0.0, 1.0)
-    return shell.positions[used], (np.cumsum(used) - 1)[tri], col[used]
+    return shell.positions[used], (np.cumsum(used) - 1)[tri], dc_colors(shell)[used]
 
 
 def fitted_colors(trainer, positions, triangles, prior):
