@@ -3,6 +3,7 @@ training image within 2**15 = 32,768 pixels (unless --preset / --downscale / a -
 the plan printed before training, an estimate of the run's duration after the first timed steps, and
 a plain --resume that continues its own run."""
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -14,7 +15,7 @@ import numpy as np
 import pytest
 
 from tsplus_wgpu.cli.main import build_parser
-from tsplus_wgpu.cli.train import CPU_MAX_PIXELS, cpu_downscale, plan_lines, plan_run
+from tsplus_wgpu.cli.train import CPU_ITERATIONS, CPU_MAX_PIXELS, cpu_downscale, plan_lines, plan_run
 from tsplus_wgpu.data.scene import downscaled_size
 from tsplus_wgpu.train.config import TrainConfig
 
@@ -46,6 +47,11 @@ def _not_asked():
 
 def test_a_cpu_adapter_plans_the_quick_preset_at_a_small_size():
     assert _plan() == ("quick", 4, "CPU adapter", "CPU adapter")           # the largest image decides
+    # a short quick run: the preset's own 3000 iterations take over an hour on 2 cores
+    assert plan_run(_args(), True, lambda: [(800, 600)]).iterations == CPU_ITERATIONS == 600
+    for argv in (("--iterations", "500"), ("--preset", "quick"), ("--preset", "paper")):
+        assert plan_run(_args(*argv), True, lambda: [(800, 600)]).iterations is None, argv
+    assert plan_run(_args(), False, _not_asked).iterations is None
     assert _plan("--iterations", "500") == ("quick", 4, "CPU adapter", "CPU adapter")   # quick scales to it
     # each flag stands on its own; an explicit --downscale 1 stays 1 (and no image is looked at)
     assert _plan("--preset", "paper") == ("paper", 4, "--preset", "CPU adapter")
@@ -76,10 +82,12 @@ def test_the_plan_lines_say_what_was_chosen_and_how_to_undo_it():
     scene = SimpleNamespace(cameras=[SimpleNamespace(width=200, height=150)], train_indices=[0])
     cfg = TrainConfig.preset(quick=True)
     cpu = plan_run(_args(), True, lambda: [(800, 600)])
-    assert plan_lines(cpu, cfg, scene) == [
-        "plan: quick preset (for the CPU adapter), 3,000 iterations at 200x150 (--downscale 4, for the CPU adapter)",
-        "CPU adapter: quick preset, --downscale 4 (200x150) so the run takes about 13 min on 2 cores; pass "
-        "--preset paper --downscale 1 for the paper's run"]
+    # the duration grows with the pixels and the initial mesh: 600 x (8.4e-6 x 30,000 + 5.9e-6 x 100,000) s
+    assert plan_lines(cpu, dataclasses.replace(cfg, iterations=cpu.iterations), scene, triangles=100_000) == [
+        "plan: quick preset (for the CPU adapter), 600 iterations (for the CPU adapter) at 200x150 (--downscale 4, "
+        "for the CPU adapter)",
+        "CPU adapter: quick preset, 600 iterations, --downscale 4 (200x150) so the run takes about 8 min on 2 cores; "
+        "pass --preset paper --downscale 1 for the paper's run"]
     asked = plan_run(_args("--preset", "quick", "--downscale", "4"), True, _not_asked)
     assert plan_lines(asked, cfg, scene) == [
         "plan: quick preset (as given), 3,000 iterations at 200x150 (--downscale 4, as given)"]
@@ -102,7 +110,7 @@ def test_a_first_run_prints_its_plan_and_estimate_and_resumes_plainly(renderer, 
     assert r.returncode == 0, r.stderr
     out = r.stdout.splitlines()
     assert "plan: quick preset (for the CPU adapter), 30 iterations at 128x96 (--downscale 2, for the CPU adapter)" \
-        in out, r.stdout
+        in out, r.stdout          # --iterations given: the CPU adapter's 600 do not apply
     assert any(x.startswith("CPU adapter: quick preset, --downscale 2 (128x96) so the run takes about") for x in out)
     assert [x for x in out if x.startswith("estimate: 5 iterations left at ")] and "(measured over steps 6-25)" in r.stdout
     assert any(x.startswith("vertex cap: 24,576 (vertex budget 2.0 x 12,288 training pixels") for x in out)

@@ -36,14 +36,20 @@ _FROM_FLAG = {**{k: (lambda v: v == "on") for k in ("topology", "shell", "carve"
                                                     "remove_shards")},
               "normals": lambda v: str(Path(v).resolve())}
 
-#: the most pixels of a training image when ``tsplus train`` picks the downscale for a CPU adapter.
-#: Measured: the cup at 200x150 (30,000 pixels), quick preset, 3000 iterations, trained in 13 min
-#: on 2 cores with lavapipe (3.0-3.8 it/s); the paper's run at full size takes days there. 2**15
-#: keeps the common 16:9 and 4:3 captures at a quarter or an eighth of their size (960x540 -> 240x135,
-#: 1080x1920 -> 135x240, 32,400 pixels each).
+#: the most pixels of a training image when ``tsplus train`` picks the downscale for a CPU adapter:
+#: 2**15 keeps the common 16:9 and 4:3 captures at a quarter or an eighth of their size (960x540 ->
+#: 240x135, 1080x1920 -> 135x240, 32,400 pixels each). The paper's run at full size takes days there.
 CPU_MAX_PIXELS = 2**15
-#: that measurement as seconds per iteration and training pixel: the plan's rough duration
-CPU_SECONDS_PER_PIXEL = 13 * 60 / (3000 * 30_000)
+#: the iterations of a quick run that ``tsplus train`` picks for a CPU adapter (neither ``--preset``,
+#: ``--iterations`` nor a ``--config`` file says). Measured on the four shared real scenes at
+#: <= 32,768 pixels, 2 cores: 3.5-14 min (docs/measurements.md); the quick preset's own 3000 took
+#: the cup 71 min.
+CPU_ITERATIONS = 600
+#: the plan's rough duration on 2 cores: seconds per iteration = CPU_SECONDS_PER_PIXEL x training
+#: pixels + CPU_SECONDS_PER_TRIANGLE x the initial mesh's triangles (a least-squares fit to the
+#: 600-iteration runs of the shared real scenes; the initial mesh is drawn until the first prune)
+CPU_SECONDS_PER_PIXEL = 8.4e-6
+CPU_SECONDS_PER_TRIANGLE = 5.9e-6
 
 
 def add_parser(sub):
@@ -167,21 +173,24 @@ class Plan:
     """What a run trains with where the command line leaves it open: ``preset`` (``"paper"``,
     ``"quick"``, or None: the ``--config`` file's), ``downscale``, and where each came from
     (``preset_from``, ``downscale_from``: ``"--preset"`` / ``"--downscale"``, ``"--config"``,
-    ``"checkpoint"``, ``"CPU adapter"`` or ``"default"``)."""
+    ``"checkpoint"``, ``"CPU adapter"`` or ``"default"``); ``iterations`` where the CPU adapter's
+    quick preset sets them (:data:`CPU_ITERATIONS`)."""
 
     preset: str | None
     downscale: int
     preset_from: str
     downscale_from: str
+    #: the iterations the plan sets (None: the flag's, the config file's or the preset's)
+    iterations: int | None = None
 
 
 def plan_run(args, is_cpu, image_sizes, checkpoint=None):
     """The run's preset and downscale (:class:`Plan`). ``--preset`` and ``--downscale`` stand as
     given, and a ``--config`` file that sets ``quick`` or ``iterations`` chooses the preset. What
     is left open: resuming (``checkpoint``: the checkpoint's config), the run's own, so a plain
-    ``--resume`` continues its run; on a CPU adapter (``is_cpu``), the quick preset and
-    :func:`cpu_downscale` of the largest image (``image_sizes()``: every image's ``(width,
-    height)`` before any downscale; not asked for the procedural scene, whose sizes are fixed);
+    ``--resume`` continues its run; on a CPU adapter (``is_cpu``), the quick preset of
+    :data:`CPU_ITERATIONS` (unless ``--iterations`` is given) and :func:`cpu_downscale` of the
+    largest image (``image_sizes()``: every image's ``(width, height)`` before any downscale; not asked for the procedural scene, whose sizes are fixed);
     else the paper preset at full size."""
     from .scenes import is_procedural
     preset, preset_from = args.preset, "--preset"
@@ -201,7 +210,8 @@ def plan_run(args, is_cpu, image_sizes, checkpoint=None):
             downscale_from = "CPU adapter"
         else:
             downscale, downscale_from = 1, "default"
-    return Plan(preset, downscale, preset_from, downscale_from)
+    iterations = CPU_ITERATIONS if preset_from == "CPU adapter" and args.iterations is None else None
+    return Plan(preset, downscale, preset_from, downscale_from, iterations)
 
 
 #: how the plan line names where a choice came from (:attr:`Plan.preset_from`, ``downscale_from``)
@@ -209,23 +219,27 @@ _FROM_TEXT = {"--preset": "as given", "--downscale": "as given", "--config": "fr
               "checkpoint": "the run's own", "CPU adapter": "for the CPU adapter", "default": "default"}
 
 
-def plan_lines(plan, cfg, scene):
+def plan_lines(plan, cfg, scene, triangles=0):
     """What ``tsplus train`` prints about its plan: the preset, the iterations and the training
     size, each with where it came from; for a CPU adapter's choices, a line with the rough
-    duration (:data:`CPU_SECONDS_PER_PIXEL`) and how to ask for the paper's run instead."""
+    duration (:data:`CPU_SECONDS_PER_PIXEL`, :data:`CPU_SECONDS_PER_TRIANGLE` of the initial
+    mesh's ``triangles``) and how to ask for the paper's run instead."""
     cam = scene.cameras[scene.train_indices[0]]
     size = f"{cam.width}x{cam.height}"
+    by_cpu = plan.iterations is not None
     lines = [f"plan: {'quick' if cfg.quick else 'paper'} preset ({_FROM_TEXT[plan.preset_from]}), "
-             f"{cfg.iterations:,} iterations at {size} (--downscale {plan.downscale}, "
-             f"{_FROM_TEXT[plan.downscale_from]})"]
-    cpu = [(chose, undo) for chose, undo, by in (("quick preset", "--preset paper", plan.preset_from),
-                                                 (f"--downscale {plan.downscale} ({size})", "--downscale 1",
-                                                  plan.downscale_from)) if by == "CPU adapter"]
+             f"{cfg.iterations:,} iterations{' (for the CPU adapter)' if by_cpu else ''} at {size} "
+             f"(--downscale {plan.downscale}, {_FROM_TEXT[plan.downscale_from]})"]
+    cpu = [(chose, undo) for chose, undo, by in (
+        ("quick preset", "--preset paper", plan.preset_from),
+        (f"{cfg.iterations:,} iterations", None, "CPU adapter" if by_cpu else None),
+        (f"--downscale {plan.downscale} ({size})", "--downscale 1", plan.downscale_from)) if by == "CPU adapter"]
     if cpu:
         from ..train.callbacks import duration_text
-        seconds = CPU_SECONDS_PER_PIXEL * cfg.iterations * cam.width * cam.height
+        seconds = cfg.iterations * (CPU_SECONDS_PER_PIXEL * cam.width * cam.height
+                                    + CPU_SECONDS_PER_TRIANGLE * triangles)
         lines.append(f"CPU adapter: {', '.join(c for c, _ in cpu)} so the run takes about {duration_text(seconds)} on "
-                     f"2 cores; pass {' '.join(u for _, u in cpu)} for the paper's run")
+                     f"2 cores; pass {' '.join(u for _, u in cpu if u)} for the paper's run")
     return lines
 
 
@@ -330,7 +344,7 @@ def _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded=None):
     _prepare(out, fresh=loaded is None)
     write_json(out / "config.json", dict(asdict(cfg), adapter=renderer.adapter_name))
     print(f"adapter: {renderer.adapter_name}")
-    for line in plan_lines(plan, cfg, scene):
+    for line in plan_lines(plan, cfg, scene, trainer.m):
         print(line)
     print(f"scene: {args.scene} ({len(scene.train_indices)} training / {len(scene.test_indices)} held-out views, "
           f"{scene.cameras[0].width}x{scene.cameras[0].height}); model {trainer.n} vertices / {trainer.m} triangles; "
@@ -406,6 +420,8 @@ def run(args):
     plan = plan_run(args, ctx.is_cpu, lambda: frame_sizes(args.scene, args.images),
                     None if loaded is None else loaded[1]["config"])
     args.preset, args.downscale = plan.preset, plan.downscale
+    if plan.iterations is not None:
+        args.iterations = plan.iterations
     settings = resolve_settings(args)
     scene = load_cli_scene(args.scene, args.downscale, args.seed, images=args.images)   # prints its warnings
     cfg = config_for_scene(args, settings, scene)
