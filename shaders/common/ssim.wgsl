@@ -8,6 +8,10 @@ struct SsimParams {
 
 // Pixels per workgroup of the per-pixel SSIM stages (ssim_loss writes one partial per group).
 const SSIM_GROUP: u32 = 256u;
+// Outputs per invocation of the four blur stages: a run of SSIM_SEG pixels along the blur's
+// direction (a row for ssim_blur_h / ssim_grad_h, a column for ssim_loss / ssim_grad_v), with the
+// window's 11 inputs kept in registers, so each input is loaded once per run, not 11 times.
+const SSIM_SEG: u32 = 16u;
 // The loss: L1_WEIGHT * L1 + SSIM_WEIGHT * (1 - SSIM); SSIM's stabilisers C1 = 0.01^2, C2 = 0.03^2.
 const L1_WEIGHT: f32 = 0.8;
 const SSIM_WEIGHT: f32 = 0.2;

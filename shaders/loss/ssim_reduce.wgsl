@@ -3,14 +3,14 @@
 #import ssim
 
 @group(0) @binding(0) var<uniform> sp: SsimParams;
-@group(0) @binding(1) var<storage, read> partials: array<vec2<f32>>;   // [ceil(H W / 256)]
+@group(0) @binding(1) var<storage, read> partials: array<vec2<f32>>;   // [ceil(W ceil(H / SSIM_SEG) / 256)]
 @group(0) @binding(2) var<storage, read_write> result: array<f32>;     // [4]
 
 var<workgroup> red: array<vec2<f32>, SSIM_GROUP>;
 
 @compute @workgroup_size(SSIM_GROUP)
 fn main(@builtin(local_invocation_index) li: u32) {
-    let n = (sp.num_pixels + SSIM_GROUP - 1u) / SSIM_GROUP;
+    let n = (sp.width * ((sp.height + SSIM_SEG - 1u) / SSIM_SEG) + SSIM_GROUP - 1u) / SSIM_GROUP;   // ssim_loss's groups
     var s = vec2<f32>(0.0);
     for (var i = li; i < n; i += SSIM_GROUP) {
         s += partials[i];

@@ -9,7 +9,9 @@ from tsplus_wgpu.kernels.loss import (DownsampleArea, DownsampleAreaT, PackVOut,
 import tsplus_wgpu.reference.loss as twin
 from scenes import submit as _run, rel_error as _rel
 
-SIZES = [(1, 1), (5, 7), (23, 29), (40, 70)]   # (H, W); 23 x 29 and 40 x 70 span several workgroups
+# (H, W); 23 x 29 and 40 x 70 span several workgroups; the others cut the runs of SSIM_SEG = 16
+# pixels along rows and columns anywhere (1, 15, 16, 17, 35 = 2 x 16 + 3)
+SIZES = [(1, 1), (5, 7), (23, 29), (40, 70), (1, 35), (35, 1), (15, 17), (17, 16), (16, 15), (3, 300), (300, 2)]
 
 
 def _images(shape, seed=2):
@@ -23,7 +25,7 @@ def test_ssim_blur_h(ctx, shape):
     x, y = _images(shape)
     k = SsimBlurH(ctx)
     rows = ctx.buffer(64 * h * w)
-    _run(ctx, lambda enc: k(enc, k.params(w, h), ctx.upload(x), ctx.upload(y), rows, h * w))
+    _run(ctx, lambda enc: k(enc, k.params(w, h), ctx.upload(x), ctx.upload(y), rows, w, h))
     got = ctx.read(rows, np.float32, 16 * h * w).reshape(h, w, 4, 4)
     want = twin.ssim_blur_h(x, y)
     assert _rel(got, want) <= 1e-6
@@ -40,10 +42,10 @@ def test_ssim_loss(ctx, shape):
     x, y = _images(shape)
     rows = twin.ssim_blur_h(x, y).astype(np.float32)
     k = SsimLoss(ctx)
-    groups = k.groups(h * w)
+    groups = k.partial_count(w, h)
     dmaps, partials = ctx.buffer(48 * h * w), ctx.buffer(8 * groups)
     _run(ctx, lambda enc: k(enc, k.params(w, h), ctx.upload(x), ctx.upload(y), ctx.upload(rows), dmaps, partials,
-                            h * w))
+                            w, h))
     want_d, want_p = twin.ssim_loss(x, y, rows)
     got_d = ctx.read(dmaps, np.float32, 12 * h * w).reshape(h, w, 3, 4)
     for j, name in enumerate("abc"):
@@ -62,7 +64,7 @@ def test_ssim_grad_h(ctx, shape):
     dmaps[..., 3] = 0.0
     k = SsimGradH(ctx)
     grows = ctx.buffer(48 * h * w)
-    _run(ctx, lambda enc: k(enc, k.params(w, h), ctx.upload(dmaps), grows, h * w))
+    _run(ctx, lambda enc: k(enc, k.params(w, h), ctx.upload(dmaps), grows, w, h))
     got = ctx.read(grows, np.float32, 12 * h * w).reshape(h, w, 3, 4)
     want = twin.ssim_grad_h(dmaps)
     for j in range(3):
@@ -78,7 +80,7 @@ def test_ssim_grad_v(ctx, shape):
     grows[..., 3] = 0.0
     k = SsimGradV(ctx)
     v = ctx.buffer(12 * h * w)
-    _run(ctx, lambda enc: k(enc, k.params(w, h), ctx.upload(x), ctx.upload(y), ctx.upload(grows), v, h * w))
+    _run(ctx, lambda enc: k(enc, k.params(w, h), ctx.upload(x), ctx.upload(y), ctx.upload(grows), v, w, h))
     got = ctx.read(v, np.float32, 3 * h * w).reshape(h, w, 3)
     want = twin.ssim_grad_v(x, y, grows)
     assert _rel(got, want) <= 1e-5

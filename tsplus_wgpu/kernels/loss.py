@@ -51,6 +51,17 @@ class DownsampleAreaT(Stage):
 class _SsimStage(Stage):
     """The SSIM stages share ``SsimParams`` (``shaders/common/ssim.wgsl``)."""
 
+    def runs(self, width, height, along="row"):
+        """Invocations of a blur stage: one per run of ``SSIM_SEG`` pixels of a row (``along="row"``)
+        or of a column."""
+        seg = int(self.const("SSIM_SEG"))
+        w, h = int(width), int(height)
+        return h * -(-w // seg) if along == "row" else w * -(-h // seg)
+
+    def partial_count(self, width, height):
+        """``ssim_loss``'s workgroups, one ``(sum |x - y|, sum m)`` partial each."""
+        return self.groups(self.runs(width, height, along="column"))
+
     def params(self, width, height):
         n = int(width) * int(height)
         return self.uniform("SsimParams", width=width, height=height, num_pixels=n, inv_n=1.0 / (3.0 * n))
@@ -60,18 +71,18 @@ class SsimBlurH(_SsimStage):
     """Row blur of x, y, x^2, y^2, xy: ``image, target [H, W, 3]`` -> ``rows [H * W, 4]`` vec4."""
     stage = "ssim_blur_h"
 
-    def __call__(self, enc, sp, image, target, rows, num_pixels, profiler=None):
-        self.dispatch(enc, self.groups(num_pixels), dict(sp=sp, image=image, target_image=target, rows=rows),
-                      profiler)
+    def __call__(self, enc, sp, image, target, rows, width, height, profiler=None):
+        self.dispatch(enc, self.groups(self.runs(width, height)),
+                      dict(sp=sp, image=image, target_image=target, rows=rows), profiler)
 
 
 class SsimLoss(_SsimStage):
     """Column blur, SSIM map and its derivative maps ``dmaps [H * W, 3]`` vec4, and one
-    ``(sum |x - y|, sum m)`` partial per workgroup (``partials [groups]`` vec2)."""
+    ``(sum |x - y|, sum m)`` partial per workgroup (``partials [partial_count]`` vec2)."""
     stage = "ssim_loss"
 
-    def __call__(self, enc, sp, image, target, rows, dmaps, partials, num_pixels, profiler=None):
-        self.dispatch(enc, self.groups(num_pixels), dict(sp=sp, image=image, target_image=target, rows=rows,
+    def __call__(self, enc, sp, image, target, rows, dmaps, partials, width, height, profiler=None):
+        self.dispatch(enc, self.partial_count(width, height), dict(sp=sp, image=image, target_image=target, rows=rows,
                                                           dmaps=dmaps, partials=partials), profiler)
 
 
@@ -79,17 +90,17 @@ class SsimGradH(_SsimStage):
     """Row blur of the derivative maps: ``dmaps`` -> ``grows [H * W, 3]`` vec4."""
     stage = "ssim_grad_h"
 
-    def __call__(self, enc, sp, dmaps, grows, num_pixels, profiler=None):
-        self.dispatch(enc, self.groups(num_pixels), dict(sp=sp, dmaps=dmaps, grows=grows), profiler)
+    def __call__(self, enc, sp, dmaps, grows, width, height, profiler=None):
+        self.dispatch(enc, self.groups(self.runs(width, height)), dict(sp=sp, dmaps=dmaps, grows=grows), profiler)
 
 
 class SsimGradV(_SsimStage):
     """Column blur of ``grows`` and d loss / d image: ``v_image [H, W, 3]``."""
     stage = "ssim_grad_v"
 
-    def __call__(self, enc, sp, image, target, grows, v_image, num_pixels, profiler=None):
-        self.dispatch(enc, self.groups(num_pixels), dict(sp=sp, image=image, target_image=target, grows=grows,
-                                                          v_image=v_image), profiler)
+    def __call__(self, enc, sp, image, target, grows, v_image, width, height, profiler=None):
+        self.dispatch(enc, self.groups(self.runs(width, height, along="column")),
+                      dict(sp=sp, image=image, target_image=target, grows=grows, v_image=v_image), profiler)
 
 
 class SsimReduce(_SsimStage):

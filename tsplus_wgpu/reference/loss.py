@@ -21,6 +21,7 @@ WINDOW = 2 * constant("RADIUS", "ssim") + 1
 WINDOW_SIGMA = constant("WINDOW_SIGMA", "ssim")
 #: pixels per workgroup of ssim_loss (one partial per group)
 SSIM_GROUP = constant("SSIM_GROUP", "ssim")
+SSIM_SEG = constant("SSIM_SEG", "ssim")
 
 
 def _row_blur(a):
@@ -58,7 +59,9 @@ def ssim_blur_h(image, target):
 def ssim_loss(image, target, rows):
     """``(dmaps [H, W, 3, 4], partials [G, 2])``: the column blur of ``rows`` gives the moments;
     dmaps holds (a.rgb, 0), (b.rgb, 0), (c.rgb, 0) per pixel; partials the sums of |x - y| and
-    of m over each ``SSIM_GROUP`` consecutive pixels (G = ceil(H W / SSIM_GROUP))."""
+    of m over the pixels of each workgroup: the kernel's invocation ``r W + col`` covers rows
+    ``r SSIM_SEG`` to ``r SSIM_SEG + SSIM_SEG - 1`` of column ``col``, a workgroup
+    ``SSIM_GROUP`` consecutive invocations (G = ceil(W ceil(H / SSIM_SEG) / SSIM_GROUP))."""
     x = np.asarray(image, np.float64)
     y = np.asarray(target, np.float64)
     h, w = x.shape[:2]
@@ -66,10 +69,14 @@ def ssim_loss(image, target, rows):
     m, a, b, c = _ssim_terms(s[..., 0:3], s[..., 3:6], s[..., 6:9], s[..., 9:12], s[..., 12:15])
     dmaps = np.zeros((h, w, 3, 4))
     dmaps[:, :, 0, :3], dmaps[:, :, 1, :3], dmaps[:, :, 2, :3] = a, b, c
-    per_pixel = np.stack([np.abs(x - y).sum(axis=2), m.sum(axis=2)], axis=-1).reshape(-1, 2)
-    groups = -(-len(per_pixel) // SSIM_GROUP)
+    per_pixel = np.stack([np.abs(x - y).sum(axis=2), m.sum(axis=2)], axis=-1)      # [H, W, 2]
+    runs = -(-h // SSIM_SEG)
+    per_run = np.zeros((runs * SSIM_SEG, w, 2))
+    per_run[:h] = per_pixel
+    per_run = per_run.reshape(runs, SSIM_SEG, w, 2).sum(axis=1).reshape(-1, 2)     # invocation r W + col
+    groups = -(-len(per_run) // SSIM_GROUP)
     padded = np.zeros((groups * SSIM_GROUP, 2))
-    padded[:len(per_pixel)] = per_pixel
+    padded[:len(per_run)] = per_run
     return dmaps, padded.reshape(groups, SSIM_GROUP, 2).sum(axis=1)
 
 
@@ -137,6 +144,6 @@ def downsample_area_t(v_image, s):
     return np.repeat(np.repeat(v, s, axis=0), s, axis=1)
 
 
-__all__ = ["C1", "C2", "L1_WEIGHT", "SSIM_WEIGHT", "WINDOW", "WINDOW_SIGMA", "SSIM_GROUP", "gaussian_window",
+__all__ = ["C1", "C2", "L1_WEIGHT", "SSIM_WEIGHT", "WINDOW", "WINDOW_SIGMA", "SSIM_GROUP", "SSIM_SEG", "gaussian_window",
            "blur", "ssim_map", "ssim_blur_h", "ssim_loss", "ssim_grad_h", "ssim_grad_v", "ssim_reduce",
            "image_loss", "pack_v_out", "downsample_area", "downsample_area_t"]

@@ -65,12 +65,12 @@ class ImageLoss:
         sp = self.blur_h.params(width, height)
         rows = self.scratch.get("ssim_rows", 64 * n)
         dmaps = self.scratch.get("ssim_dmaps", 48 * n)
-        partials = self.scratch.get("ssim_partials", 8 * self.loss.groups(n))
-        self.blur_h(enc, sp, image, target, rows, n, profiler)
-        self.loss(enc, sp, image, target, rows, dmaps, partials, n, profiler)
+        partials = self.scratch.get("ssim_partials", 8 * self.loss.partial_count(width, height))
+        self.blur_h(enc, sp, image, target, rows, width, height, profiler)
+        self.loss(enc, sp, image, target, rows, dmaps, partials, width, height, profiler)
         self.reduce(enc, sp, partials, result, profiler)
-        self.grad_h(enc, sp, dmaps, rows, n, profiler)       # rows is free again: reuse it
-        self.grad_v(enc, sp, image, target, rows, v_image, n, profiler)
+        self.grad_h(enc, sp, dmaps, rows, width, height, profiler)       # rows is free again: reuse it
+        self.grad_v(enc, sp, image, target, rows, v_image, width, height, profiler)
 
     def __call__(self, image, target):
         """Host convenience: arrays ``[H, W, 3]`` in, ``(loss, l1, ssim, v_image)`` out."""

@@ -47,7 +47,7 @@ def _consts():
                 sort_block=int(constant("SORT_BLOCK", "radix_count")), radix=int(constant("RADIX", "radix_count")),
                 radix_bits=int(constant("RADIX_BITS", "radix_count")),
                 scan_block=int(constant("SCAN_BLOCK", "scan_block")), chunk=int(constant("CHUNK", "segment_up")),
-                ssim_group=int(load_wgsl("ssim_loss").invocations))
+                ssim_group=int(load_wgsl("ssim_loss").invocations), ssim_seg=int(constant("SSIM_SEG", "ssim")))
 
 
 def _ceil(a, b):
@@ -140,7 +140,7 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
         ("ranges", 8 * tiles), ("backward_state", 16 * sub))]
     out += [(X, name, _scratch(b)) for name, b in (
         ("train_v_out", 16 * sub), ("train_v_image", 12 * p), ("ssim_rows", 64 * p), ("ssim_dmaps", 48 * p),
-        ("ssim_partials", 8 * _ceil(p, c["ssim_group"])))]
+        ("ssim_partials", 8 * _ceil(width * _ceil(height, c["ssim_seg"]), c["ssim_group"])))]
     if s > 1:
         out.append((X, "train_image_down", _scratch(12 * p)))
     out += [(Q, name, _buf(b)) for name, b in (
