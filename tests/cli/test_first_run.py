@@ -125,3 +125,22 @@ def test_a_first_run_prints_its_plan_and_estimate_and_resumes_plainly(renderer, 
     r = _cli("train", "scene", "--out", "run", "--iterations", 30, "--resume", "--overwrite", "--downscale", 1,
              cwd=tmp_path)
     assert r.returncode == 2 and "--downscale 2 (checkpoint) vs 1" in r.stderr
+
+
+def test_points_flag_chooses_the_initial_points(tmp_path):
+    """`--points`: the scene's SfM points by default, frusta points when asked; the procedural
+    scene refuses it in one line."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import fuzz_data as fd
+    from tsplus_wgpu.cli.scenes import load_cli_scene
+    views = fd.procedural_views()
+    fd.make_colmap(tmp_path / "scene", views, binary=False)
+    sfm = load_cli_scene(str(tmp_path / "scene"), warn=False)
+    assert sfm.points_source == "sfm" and 0 < len(sfm.points) <= len(views[3])
+    fr = load_cli_scene(str(tmp_path / "scene"), warn=False, points="frusta")
+    assert fr.points_source == "frusta" and fr.points.shape != sfm.points.shape
+    assert any("frusta (as asked)" in str(w) for w in fr.warnings)
+    assert build_parser().parse_args(["train", "x", "--out", "o", "--points", "triangulate"]).points == "triangulate"
+    r = _cli("train", "procedural:tiny", "--out", "run", "--points", "frusta", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        "tsplus: error: --points frusta: the procedural scene has its own points; drop --points"], r.stderr

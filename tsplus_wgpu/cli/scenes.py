@@ -17,6 +17,18 @@ def add_images_arg(p, help=IMAGES_HELP):
     p.add_argument("--images", default=None, metavar="DIR", help=help)
 
 
+#: ``--points`` of ``tsplus train``: the initial points (``load_scene``'s ``points``)
+POINTS_CHOICES = ("auto", "triangulate", "frusta")
+
+
+def add_points_arg(p):
+    """``--points auto|triangulate|frusta``: where ``tsplus train``'s initial points come from."""
+    p.add_argument("--points", default="auto", choices=POINTS_CHOICES,
+                   help="initial points: auto (the scene's SfM points, else triangulated with pycolmap from the "
+                        "posed training images at full size, cached), triangulate (that even when the scene has "
+                        "SfM points), frusta (points spread in the cameras' frusta)")
+
+
 def is_procedural(scene_arg):
     return scene_arg is None or str(scene_arg).split(":")[0] == "procedural"
 
@@ -27,18 +39,21 @@ def print_scene_warnings(scene, file=None):
         print(f"warning: {w}", file=file or sys.stderr, flush=True)
 
 
-def load_cli_scene(scene_arg, downscale=1, seed=0, images=None, warn=True):
+def load_cli_scene(scene_arg, downscale=1, seed=0, images=None, warn=True, points="auto"):
     """The scene ``scene_arg`` names (``procedural[:size]`` or a folder), its images from the
-    folder ``images`` when given; the loader's warnings printed (``warn``) and kept on
-    ``scene.warnings`` for the run's config.json / metrics.json."""
+    folder ``images`` when given, its initial ``points`` as :func:`~tsplus_wgpu.data.loader.load_scene`
+    takes them; the loader's warnings printed (``warn``) and kept on ``scene.warnings`` for the
+    run's config.json / metrics.json."""
     from ..data import load_scene_arg
-    if images is None:
+    if is_procedural(scene_arg) and points != "auto":
+        raise UserError(f"--points {points}: the procedural scene has its own points; drop --points")
+    if images is None and points == "auto":
         scene = load_scene_arg(scene_arg, downscale, seed)
     elif is_procedural(scene_arg):
         raise UserError(f"--images {images}: the procedural scene has no image folder; drop --images")
     else:
         from ..data.loader import load_scene
-        scene = load_scene(scene_arg, images=images, downscale=downscale, seed=seed)
+        scene = load_scene(scene_arg, images=images, downscale=downscale, seed=seed, points=points)
     if warn:
         print_scene_warnings(scene)
     return scene

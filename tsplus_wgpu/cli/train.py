@@ -74,8 +74,9 @@ def add_parser(sub):
     p.add_argument("--downscale", type=int, default=None,
                    help=f"shrink the images by this factor (default 1; on a CPU adapter the smallest that leaves a "
                         f"training image at most {CPU_MAX_PIXELS:,} pixels; with --resume the run's own)")
-    from .scenes import add_images_arg
+    from .scenes import add_images_arg, add_points_arg
     add_images_arg(p)
+    add_points_arg(p)
     p.add_argument("--resume", action="store_true",
                    help="continue from OUT/checkpoint.npz (refused when SCENE, --downscale, --images or the data "
                         "differ from the run's)")
@@ -253,6 +254,7 @@ def config_for_scene(args, settings, scene):
                          **({"ablation": args.ablation} if getattr(args, "ablation", None) else {}),
                          **({"config_file": str(args.config)} if args.config else {}),
                          "images": getattr(args, "images", None),
+                         **({"points": args.points} if getattr(args, "points", "auto") != "auto" else {}),
                          "scene_warnings": [str(w) for w in getattr(scene, "warnings", None) or ()],
                          "data": data_fingerprint(scene, args.scene, args.downscale, getattr(args, "images", None))}
     return TrainConfig(**settings)
@@ -423,7 +425,8 @@ def run(args):
     if plan.iterations is not None:
         args.iterations = plan.iterations
     settings = resolve_settings(args)
-    scene = load_cli_scene(args.scene, args.downscale, args.seed, images=args.images)   # prints its warnings
+    scene = load_cli_scene(args.scene, args.downscale, args.seed, images=args.images,   # prints its warnings
+                           points=args.points)
     cfg = config_for_scene(args, settings, scene)
     trainer = _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded)
     del loaded
