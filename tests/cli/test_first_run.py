@@ -71,6 +71,10 @@ def test_a_config_file_that_sets_the_preset_or_iterations_keeps_it(tmp_path):
 
 
 def test_resume_keeps_the_runs_preset_and_downscale():
+    # and its iterations: a plain --resume of the CPU's 600-iteration run is not a 3000-iteration one
+    p = plan_run(_args(), True, _not_asked, dict(quick=True, iterations=600, extra=dict(downscale=4)))
+    assert (p.iterations, p.iterations_from) == (600, "checkpoint")
+    assert plan_run(_args("--iterations", "900"), True, _not_asked, dict(quick=True, iterations=600)).iterations is None
     ckpt = dict(quick=True, extra=dict(downscale=4, scene="/x"))
     for cpu in (True, False):
         assert _plan(cpu=cpu, checkpoint=ckpt) == ("quick", 4, "checkpoint", "checkpoint")

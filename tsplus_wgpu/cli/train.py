@@ -174,15 +174,17 @@ class Plan:
     """What a run trains with where the command line leaves it open: ``preset`` (``"paper"``,
     ``"quick"``, or None: the ``--config`` file's), ``downscale``, and where each came from
     (``preset_from``, ``downscale_from``: ``"--preset"`` / ``"--downscale"``, ``"--config"``,
-    ``"checkpoint"``, ``"CPU adapter"`` or ``"default"``); ``iterations`` where the CPU adapter's
-    quick preset sets them (:data:`CPU_ITERATIONS`)."""
+    ``"checkpoint"``, ``"CPU adapter"`` or ``"default"``); ``iterations`` where the plan sets
+    them: a resumed run's own, or the CPU adapter's quick run (:data:`CPU_ITERATIONS`)."""
 
     preset: str | None
     downscale: int
     preset_from: str
     downscale_from: str
-    #: the iterations the plan sets (None: the flag's, the config file's or the preset's)
+    #: the iterations the plan sets (None: the flag's, the config file's or the preset's) and
+    #: where they came from (``"CPU adapter"`` or ``"checkpoint"``)
     iterations: int | None = None
+    iterations_from: str | None = None
 
 
 def plan_run(args, is_cpu, image_sizes, checkpoint=None):
@@ -211,8 +213,12 @@ def plan_run(args, is_cpu, image_sizes, checkpoint=None):
             downscale_from = "CPU adapter"
         else:
             downscale, downscale_from = 1, "default"
-    iterations = CPU_ITERATIONS if preset_from == "CPU adapter" and args.iterations is None else None
-    return Plan(preset, downscale, preset_from, downscale_from, iterations)
+    iterations, iterations_from = None, None
+    if args.iterations is None and checkpoint is not None and "iterations" in checkpoint:
+        iterations, iterations_from = int(checkpoint["iterations"]), "checkpoint"
+    elif args.iterations is None and preset_from == "CPU adapter":
+        iterations, iterations_from = CPU_ITERATIONS, "CPU adapter"
+    return Plan(preset, downscale, preset_from, downscale_from, iterations, iterations_from)
 
 
 #: how the plan line names where a choice came from (:attr:`Plan.preset_from`, ``downscale_from``)
@@ -227,9 +233,10 @@ def plan_lines(plan, cfg, scene, triangles=0):
     mesh's ``triangles``) and how to ask for the paper's run instead."""
     cam = scene.cameras[scene.train_indices[0]]
     size = f"{cam.width}x{cam.height}"
-    by_cpu = plan.iterations is not None
+    by_cpu = plan.iterations_from == "CPU adapter"
     lines = [f"plan: {'quick' if cfg.quick else 'paper'} preset ({_FROM_TEXT[plan.preset_from]}), "
-             f"{cfg.iterations:,} iterations{' (for the CPU adapter)' if by_cpu else ''} at {size} "
+             f"{cfg.iterations:,} iterations"
+             f"{f' ({_FROM_TEXT[plan.iterations_from]})' if plan.iterations_from else ''} at {size} "
              f"(--downscale {plan.downscale}, {_FROM_TEXT[plan.downscale_from]})"]
     cpu = [(chose, undo) for chose, undo, by in (
         ("quick preset", "--preset paper", plan.preset_from),
