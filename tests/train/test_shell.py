@@ -215,7 +215,7 @@ def test_final_prune_off_keeps_every_triangle(renderer):
     kept = {}
     for on in (True, False):
         t = Trainer(tiny, TrainConfig(iterations=3, quick=True, topology=False, final_prune=on, fill_holes=False,
-                                      remove_shards=False, log_every=0),
+                                      remove_shards=False, color_detail=False, log_every=0),
                     renderer=renderer)
         t.train(progress=False, checkpoint_at_end=False)
         kept[on] = len(t.final_mesh()[1])

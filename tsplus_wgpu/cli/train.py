@@ -33,7 +33,7 @@ from ..train.config import TrainConfig, check_settings, cli_options, preset_defa
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
 _FROM_FLAG = {**{k: (lambda v: v == "on") for k in ("topology", "shell", "carve", "final_prune", "fill_holes",
-                                                    "remove_shards")},
+                                                    "remove_shards", "color_detail")},
               "normals": lambda v: str(Path(v).resolve())}
 
 #: the most pixels of a training image when ``tsplus train`` picks the downscale for a CPU adapter:
@@ -377,6 +377,20 @@ def _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded=None):
     return trainer
 
 
+def detail_line(info):
+    """One line on the colour detail (:mod:`tsplus_wgpu.train.detail`): the level kept and why."""
+    if "skipped" in info:
+        return f"colour detail: none ({info['skipped']})"
+    lv, chosen = info["levels"], info["chosen"]
+    tried = ", ".join(f"{x['psnr']:.2f}" for x in lv[1:]) or "none possible within the vertex budget"
+    if chosen == 0:
+        return (f"colour detail: none kept (the {info['held_back']} held-back training views: {lv[0]['psnr']:.2f} dB "
+                f"as trained, subdivided {tried} dB)")
+    return (f"colour detail: triangles over {lv[chosen]['px']:g} px split, {lv[0]['vertices']:,} -> "
+            f"{lv[chosen]['vertices']:,} vertices (the {info['held_back']} held-back training views: "
+            f"{lv[0]['psnr']:.2f} dB as trained, {tried} dB at the levels tried)")
+
+
 def _finish(trainer, scene, out, ckpt, psnr0):
     """Export the mesh (first: nothing optional before it), then the checkpoint, the
     evaluation, metrics.json (which marks the run finished) and the test renders."""
@@ -388,6 +402,8 @@ def _finish(trainer, scene, out, ckpt, psnr0):
     colours = f"fitted to {fin['color_fit']['views']} training views" if fin["color_fit"] else "from SH DC"
     print(f"exported mesh: {len(tri):,} triangles, {fin['filled_triangles']:,} of them a backdrop filling holes of "
           f"the training views; {fin['shards']:,} shards removed; vertex colours {colours}")
+    if fin.get("detail") is not None:
+        print(detail_line(fin["detail"]))
     trainer.save_checkpoint(ckpt)
     soft_psnr, soft_ssim, _ = trainer.evaluate()
     views = list(scene.test_indices or trainer.train_views)
@@ -404,6 +420,7 @@ def _finish(trainer, scene, out, ckpt, psnr0):
                    initial_model_psnr=psnr0, mesh_vertices=int(len(pos)), mesh_triangles=int(len(tri)),
                    model_vertices=trainer.n, model_triangles=trainer.m, train_seconds=trainer.elapsed,
                    iterations_per_s=trainer.iteration / max(trainer.elapsed, 1e-9),
+                   color_detail=fin.get("detail"),
                    scene_warnings=[str(w) for w in getattr(scene, "warnings", None) or ()])
     write_json(out / "metrics.json", metrics)
     for v, img in zip(views[:4], imgs[:4]):

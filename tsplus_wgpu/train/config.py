@@ -207,6 +207,12 @@ class TrainConfig:
               "nearest training camera whose pixels' error is over twice the mean), then fill and colour again "
               "(tsplus_wgpu/train/final.py; +0.2 to +0.9 dB held-out on the four shared real captures)",
         flag="--remove-shards", check=boolean(), choices=["on", "off"])
+    color_detail: bool = option(
+        True, "at the end, subdivide the exported mesh where its triangles are large on screen (over 16, 8, 4 or 2 "
+              "pixels, within --vertex-budget) so the fitted vertex colours carry the photos' texture; the level is "
+              "the one whose colours, fitted without every 4th training view, draw those views best (none if the "
+              "mesh as trained does; tsplus_wgpu/train/detail.py). Needs --mesh-colors fit",
+        flag="--color-detail", check=boolean(), choices=["on", "off"])
     mesh_colors: str = option(
         "fit", "vertex colours of the exported mesh: 'fit' solves for the colours that best reproduce the training "
                "photos through the exported, depth-tested mesh (linear least squares, tsplus_wgpu/render/"

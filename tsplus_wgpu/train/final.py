@@ -7,7 +7,8 @@ training view's image, the backdrop of other viewpoints), then the unused vertic
 opacity are dropped. Holes a training view still shows are filled with a fresh background
 shell's triangles (``config.fill_holes``, :func:`backdrop_fill`); shards, large triangles that
 draw the training views badly, are removed and the fill and the colours made again
-(``config.remove_shards``, :func:`find_shards`). The vertex colours are
+(``config.remove_shards``, :func:`find_shards`); the mesh is subdivided where the held-back
+training views say finer colours draw them better (``config.color_detail``, :mod:`.detail`). The vertex colours are
 either the SH DC term (``config.mesh_colors = 'dc'``) or fitted to the training photos through
 the exported, depth-tested mesh (``'fit'``, :func:`~tsplus_wgpu.render.mesh_fit.fit_vertex_colors`):
 an engine draws one colour per vertex, and the SH DC term is the colour's mean over the whole
@@ -21,7 +22,9 @@ import numpy as np
 from ..kernels.loss import supersampled_camera
 from ..io.export import dc_colors
 from .schedules import FINAL_PRUNE_WEIGHT
+from .detail import VALIDATION_SUPERSAMPLE, colour_detail, with_midpoints
 from .shell import SURFACE, background_shell, beyond_views
+from .strategy.cap import vertex_cap
 
 #: samples per pixel side of the colour fit (reduced for large images, mesh_fit.MAX_SAMPLES)
 FIT_SUPERSAMPLE = 2
@@ -44,6 +47,8 @@ def final_mesh(trainer):
             t.final_info["shards"] = int(shards.sum())
             mesh = _exported(t, keep & ~shards)
     pos_frame, pos_world, tris, colors, _ = mesh
+    if cfg.color_detail and cfg.mesh_colors == "fit" and len(tris):
+        pos_frame, pos_world, tris, colors = detailed(t, pos_frame, pos_world, tris, colors)
     return pos_world, tris, colors
 
 
@@ -164,3 +169,33 @@ def fitted_colors(trainer, positions, triangles, prior):
                                      supersample=FIT_SUPERSAMPLE, background=t.config.background)
     t.final_info["color_fit"] = info
     return colors
+
+
+def detailed(trainer, pos_frame, pos_world, triangles, colors):
+    """``(positions in the frame, in world units, triangles, colours)``: the mesh subdivided as
+    :func:`~.detail.colour_detail` chooses, within the run's vertex cap (without the device's
+    bound: the trainer never draws it), and its colours fitted again to every training view."""
+    from ..render.mesh_fit import ID_BASE, fit_vertex_colors
+    t = trainer
+    cams = [t.scene.cameras[v] for v in t.train_views]
+    imgs = [t.scene.images[v] for v in t.train_views]
+    near, bg = t.config.near, tuple(t.config.background)
+
+    def fit(pos, tri, prior, which):
+        return fit_vertex_colors(pos, tri, [cams[i] for i in which], [imgs[i] for i in which], prior, near,
+                                 t.mesh_renderer, supersample=FIT_SUPERSAMPLE, background=bg)[0]
+
+    def draw(pos, tri, col, i):
+        return t.mesh_renderer.render((pos, tri, col), cams[i], near=near, supersample=VALIDATION_SUPERSAMPLE,
+                                      background=bg).image
+
+    budget = vertex_cap(t.config, cams).vertices
+    tri, steps, info = colour_detail(pos_frame, triangles, colors, cams, imgs, fit, draw, budget,
+                                     ID_BASE * ID_BASE - 1)
+    t.final_info["detail"] = info
+    if not steps:
+        return pos_frame, pos_world, triangles, colors
+    for edges in steps:
+        pos_frame, pos_world = with_midpoints(pos_frame, edges), with_midpoints(pos_world, edges)
+        colors = with_midpoints(colors, edges)
+    return pos_frame, pos_world, tri, fitted_colors(t, pos_frame, tri, colors)
