@@ -36,6 +36,9 @@ VALIDATION_EVERY = 4
 MIN_VALIDATION_VIEWS = 2
 #: the levels' size thresholds in pixels (longest edge at the nearest training camera)
 LEVEL_PX = (16.0, 8.0, 4.0, 2.0)
+#: no subdivision when the vertex budget leaves room for fewer than this fraction more vertices (a
+#: model trained up to its budget: the validation fits would cost minutes and could add nothing)
+MIN_ROOM = 0.05
 #: samples per pixel side when the held-back views are drawn
 VALIDATION_SUPERSAMPLE = 2
 
@@ -133,6 +136,10 @@ def colour_detail(positions, triangles, colors, cameras, images, fit, draw, budg
     info = dict(levels=[], chosen=0, held_back=len(held))
     if len(held) < MIN_VALIDATION_VIEWS or not len(tri):
         info["skipped"] = f"{len(views)} training views: fewer than {MIN_VALIDATION_VIEWS} to hold back"
+        return tri, [], info
+    if budget - len(positions) < MIN_ROOM * len(positions):
+        info["skipped"] = (f"{len(positions):,} vertices: the vertex budget of {budget:,} leaves no room for "
+                           f"{100 * MIN_ROOM:.0f} percent more")
         return tri, [], info
     fitted = [v for v in views if v not in held]
 
