@@ -86,16 +86,22 @@ def with_midpoints(values, edges):
     return np.concatenate([values, 0.5 * (values[edges[:, 0]] + values[edges[:, 1]])])
 
 
-def pixel_size(positions, triangles, cameras):
-    """``[F]``: each triangle's longest edge in pixels at the nearest of ``cameras``' centres
-    (their median focal length, the edge seen face-on from the triangle's centroid's distance)."""
+def angular_size(positions, triangles, cameras):
+    """``(edge [F], dist [F])``: each triangle's longest edge and its centroid's distance to the
+    nearest of ``cameras``' centres (``edge / dist``: its angular size, in radians, seen face-on)."""
     p = np.asarray(positions, np.float64)[np.asarray(triangles, np.int64).reshape(-1, 3)]
     edge = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
-    centres = np.stack([c.center for c in cameras])
     cen = p.mean(axis=1)
     dist = np.full(len(p), np.inf)
-    for c in centres:                  # [F] at a time: no [F, C, 3] array
-        dist = np.minimum(dist, np.linalg.norm(cen - c, axis=1))
+    for c in cameras:                  # [F] at a time: no [F, C, 3] array
+        dist = np.minimum(dist, np.linalg.norm(cen - c.center, axis=1))
+    return edge, dist
+
+
+def pixel_size(positions, triangles, cameras):
+    """``[F]``: each triangle's longest edge in pixels at the nearest of ``cameras``' centres
+    (:func:`angular_size` at their median focal length)."""
+    edge, dist = angular_size(positions, triangles, cameras)
     focal = float(np.median([0.5 * (c.fx + c.fy) for c in cameras]))
     return edge / np.maximum(dist, 1e-12) * focal
 

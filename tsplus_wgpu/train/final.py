@@ -22,7 +22,7 @@ import numpy as np
 from ..kernels.loss import supersampled_camera
 from ..io.export import dc_colors
 from .schedules import FINAL_PRUNE_WEIGHT
-from .detail import VALIDATION_SUPERSAMPLE, colour_detail, with_midpoints
+from .detail import VALIDATION_SUPERSAMPLE, angular_size, colour_detail, with_midpoints
 from .shell import SURFACE, background_shell, beyond_views
 from .strategy.cap import vertex_cap
 
@@ -117,10 +117,7 @@ def find_shards(trainer, pos_frame, pos_world, tris, colors, source):
         count += np.bincount(ids[ok], minlength=len(tris))
         total, drawn = total + float(r[ok].sum()), drawn + int(ok.sum())
     mean_err = np.where(count > 0, err / np.maximum(count, 1), 0.0)
-    centres = np.stack([t.scene.cameras[v].center for v in t.train_views])
-    p = pos_frame[tris]
-    edge = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
-    dist = np.min(np.linalg.norm(p.mean(axis=1)[:, None, :] - centres[None], axis=2), axis=1)
+    edge, dist = angular_size(pos_frame, tris, [t.scene.cameras[v] for v in t.train_views])
     groups = t.groups if t.groups is not None else np.zeros(t.m, np.int8)
     surface = (source >= 0) & (groups[np.maximum(source, 0)] == SURFACE)
     bad = surface & (edge > SHARD_ANGLE * dist) & (mean_err > SHARD_RESIDUAL * total / max(drawn, 1))
@@ -161,29 +158,34 @@ def backdrop_fill(trainer, positions, triangles):
 def fitted_colors(trainer, positions, triangles, prior):
     """The least-squares vertex colours of the mesh ``(positions, triangles)`` (in the
     trainer's frame) against the training photos, drawn as ``tsplus eval`` draws it."""
+    colors, info = fit_to_views(trainer, positions, triangles, prior, trainer.train_views)
+    trainer.final_info["color_fit"] = info
+    return colors
+
+
+def fit_to_views(trainer, positions, triangles, prior, views):
+    """``(colours, info)``: :func:`~tsplus_wgpu.render.mesh_fit.fit_vertex_colors` of the mesh
+    against the scene's views numbered ``views``."""
     from ..render.mesh_fit import fit_vertex_colors
     t = trainer
-    views = list(t.train_views)
-    colors, info = fit_vertex_colors(positions, triangles, [t.scene.cameras[v] for v in views],
-                                     [t.scene.images[v] for v in views], prior, t.config.near, t.mesh_renderer,
-                                     supersample=FIT_SUPERSAMPLE, background=t.config.background)
-    t.final_info["color_fit"] = info
-    return colors
+    return fit_vertex_colors(positions, triangles, [t.scene.cameras[v] for v in views],
+                             [t.scene.images[v] for v in views], prior, t.config.near, t.mesh_renderer,
+                             supersample=FIT_SUPERSAMPLE, background=t.config.background)
 
 
 def detailed(trainer, pos_frame, pos_world, triangles, colors):
     """``(positions in the frame, in world units, triangles, colours)``: the mesh subdivided as
     :func:`~.detail.colour_detail` chooses, within the run's vertex cap (without the device's
     bound: the trainer never draws it), and its colours fitted again to every training view."""
-    from ..render.mesh_fit import ID_BASE, fit_vertex_colors
+    from ..render.mesh_fit import ID_BASE
     t = trainer
-    cams = [t.scene.cameras[v] for v in t.train_views]
-    imgs = [t.scene.images[v] for v in t.train_views]
+    views = list(t.train_views)
+    cams = [t.scene.cameras[v] for v in views]
+    imgs = [t.scene.images[v] for v in views]
     near, bg = t.config.near, tuple(t.config.background)
 
     def fit(pos, tri, prior, which):
-        return fit_vertex_colors(pos, tri, [cams[i] for i in which], [imgs[i] for i in which], prior, near,
-                                 t.mesh_renderer, supersample=FIT_SUPERSAMPLE, background=bg)[0]
+        return fit_to_views(t, pos, tri, prior, [views[i] for i in which])[0]
 
     def draw(pos, tri, col, i):
         return t.mesh_renderer.render((pos, tri, col), cams[i], near=near, supersample=VALIDATION_SUPERSAMPLE,
