@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from tsplus_wgpu.cli.main import build_parser
-from tsplus_wgpu.cli.train import CPU_ITERATIONS, CPU_MAX_PIXELS, cpu_downscale, plan_lines, plan_run
+from tsplus_wgpu.cli import plan as planning
+from tsplus_wgpu.cli.train import CPU_MAX_PIXELS, cpu_downscale, cpu_iterations, plan_lines, plan_run
 from tsplus_wgpu.data.scene import downscaled_size
 from tsplus_wgpu.train.config import TrainConfig
 
@@ -47,8 +48,9 @@ def _not_asked():
 
 def test_a_cpu_adapter_plans_the_quick_preset_at_a_small_size():
     assert _plan() == ("quick", 4, "CPU adapter", "CPU adapter")           # the largest image decides
-    # a short quick run: the preset's own 3000 iterations take over an hour on 2 cores
-    assert plan_run(_args(), True, lambda: [(800, 600)]).iterations == CPU_ITERATIONS == 600
+    # the iterations are left to cpu_iterations, once the scene is loaded
+    p = plan_run(_args(), True, lambda: [(800, 600)])
+    assert (p.iterations, p.iterations_from) == (None, "CPU adapter")
     for argv in (("--iterations", "500"), ("--preset", "quick"), ("--preset", "paper")):
         assert plan_run(_args(*argv), True, lambda: [(800, 600)]).iterations is None, argv
     assert plan_run(_args(), False, _not_asked).iterations is None
@@ -82,19 +84,46 @@ def test_resume_keeps_the_runs_preset_and_downscale():
     assert _plan("--downscale", "2", checkpoint=ckpt)[1:] == (2, "checkpoint", "--downscale")   # refused later
 
 
+def _scene(width=200, height=150, views=1, points=0):
+    cams = [SimpleNamespace(width=width, height=height) for _ in range(views)]
+    return SimpleNamespace(cameras=cams, train_indices=list(range(views)), points=np.zeros((points, 3)))
+
+
 def test_the_plan_lines_say_what_was_chosen_and_how_to_undo_it():
-    scene = SimpleNamespace(cameras=[SimpleNamespace(width=200, height=150)], train_indices=[0])
+    scene = _scene()
     cfg = TrainConfig.preset(quick=True)
     cpu = plan_run(_args(), True, lambda: [(800, 600)])
-    # the duration grows with the pixels and the initial mesh: 600 x (8.4e-6 x 30,000 + 5.9e-6 x 100,000) s
-    assert plan_lines(cpu, dataclasses.replace(cfg, iterations=cpu.iterations), scene, triangles=100_000) == [
+    # one view, 600 quick iterations: the first prune at 80 + 10 (outdoor); before it the initial mesh's 100,000
+    # triangles, after it 1.08 x the vertex cap's 60,000 (2 x 30,000 pixels), each with 30,000 pixels
+    early, late = 2.2e-6 * 30_000 + 2.26e-6 * 100_000, 1.08 * (2.2e-6 * 30_000 + 2.26e-6 * 60_000)
+    assert planning.cpu_seconds(dataclasses.replace(cfg, iterations=600), scene.cameras, 100_000) == \
+        pytest.approx(89 * early + 511 * late, rel=1e-12)                  # 137 s
+    assert plan_lines(cpu, dataclasses.replace(cfg, iterations=600), scene, triangles=100_000) == [
         "plan: quick preset (for the CPU adapter), 600 iterations (for the CPU adapter) at 200x150 (--downscale 4, "
         "for the CPU adapter)",
-        "CPU adapter: quick preset, 600 iterations, --downscale 4 (200x150) so the run takes about 8 min on 2 cores; "
-        "pass --preset paper --downscale 1 for the paper's run"]
+        "CPU adapter: quick preset, 600 iterations, --downscale 4 (200x150) so the training takes about 2 min on 2 "
+        "cores; pass --preset paper --downscale 1 for the paper's run"]
     asked = plan_run(_args("--preset", "quick", "--downscale", "4"), True, _not_asked)
     assert plan_lines(asked, cfg, scene) == [
         "plan: quick preset (as given), 3,000 iterations at 200x150 (--downscale 4, as given)"]
+
+
+def test_the_cpu_default_takes_the_most_iterations_that_fit_its_time():
+    cfg = TrainConfig.preset(quick=True)
+    seconds = lambda n, scene: planning.cpu_seconds(dataclasses.replace(cfg, iterations=n), scene.cameras,
+                                                    planning.TRIANGLES_PER_POINT * len(scene.points))
+    chosen = {}
+    for size, points in (((200, 150), 9000), ((240, 135), 9000), ((135, 240), 17_000), ((190, 142), 1500),
+                         ((64, 48), 100)):
+        scene = _scene(*size, views=50, points=points)
+        n = chosen[size, points] = cpu_iterations(cfg, scene)
+        assert n % 100 == 0 and 600 <= n <= 3000
+        assert n == 3000 or (seconds(n, scene) <= planning.CPU_TRAIN_SECONDS < seconds(n + 100, scene)), size
+        assert cpu_iterations(dataclasses.replace(cfg, iterations=7), scene) == n     # the config's own: ignored
+    # more points (a larger initial mesh) or more pixels: fewer iterations; a tiny scene: the quick preset's own
+    assert chosen[(135, 240), 17_000] < chosen[(200, 150), 9000] < 3000 == chosen[(64, 48), 100]
+    assert cpu_iterations(cfg, _scene(1000, 1000, views=50, points=100_000)) == 600          # never fewer
+    assert cpu_iterations(cfg, _scene(200, 150, views=50, points=9000), seconds=10 ** 6) == 3000
 
 
 def _cli(*args, cwd):
@@ -114,8 +143,8 @@ def test_a_first_run_prints_its_plan_and_estimate_and_resumes_plainly(renderer, 
     assert r.returncode == 0, r.stderr
     out = r.stdout.splitlines()
     assert "plan: quick preset (for the CPU adapter), 30 iterations at 128x96 (--downscale 2, for the CPU adapter)" \
-        in out, r.stdout          # --iterations given: the CPU adapter's 600 do not apply
-    assert any(x.startswith("CPU adapter: quick preset, --downscale 2 (128x96) so the run takes about") for x in out)
+        in out, r.stdout          # --iterations given: the CPU adapter's choice does not apply
+    assert any(x.startswith("CPU adapter: quick preset, --downscale 2 (128x96) so the training takes about") for x in out)
     assert [x for x in out if x.startswith("estimate: 5 iterations left at ")] and "(measured over steps 6-25)" in r.stdout
     assert any(x.startswith("vertex cap: 24,576 (vertex budget 2.0 x 12,288 training pixels") for x in out)
     cfg = json.loads((tmp_path / "run" / "config.json").read_text())
@@ -129,6 +158,26 @@ def test_a_first_run_prints_its_plan_and_estimate_and_resumes_plainly(renderer, 
     r = _cli("train", "scene", "--out", "run", "--iterations", 30, "--resume", "--overwrite", "--downscale", 1,
              cwd=tmp_path)
     assert r.returncode == 2 and "--downscale 2 (checkpoint) vs 1" in r.stderr
+
+
+def test_a_default_cpu_run_trains_the_iterations_its_plan_chose(renderer, tmp_path, monkeypatch, capsys):
+    """No --iterations, --preset or --config: the CPU adapter's count comes from cpu_iterations, given the
+    loaded scene at its training size (patched to a short run here) and written to config.json."""
+    if not renderer.ctx.is_cpu:
+        pytest.skip("the CPU adapter's defaults: this adapter is not a CPU")
+    from tsplus_wgpu.cli import train as train_cli
+    from tsplus_wgpu.cli.main import main
+    asked = []
+
+    def short(cfg, scene, seconds=planning.CPU_TRAIN_SECONDS):
+        asked.append((cfg.quick, scene.cameras[scene.train_indices[0]].width, len(scene.points)))
+        return 12
+    monkeypatch.setattr(train_cli, "cpu_iterations", short)
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "procedural:tiny", "--out", "run", "--no-progress", "--color-detail", "off"]) == 0
+    assert asked and asked[0][:2] == (True, 64) and asked[0][2] > 0
+    assert "plan: quick preset (for the CPU adapter), 12 iterations (for the CPU adapter) at 64x48" in capsys.readouterr().out
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["iterations"] == 12
 
 
 def test_points_flag_chooses_the_initial_points(tmp_path):

@@ -6,12 +6,12 @@ field's metadata (:func:`~tsplus_wgpu.train.config.cli_options`): flag, help and
 declared once, there. Precedence: a flag on the command line, then the ``--config`` file, then
 the preset's default (:func:`~tsplus_wgpu.train.config.preset_defaults`), then the field's.
 
-The preset and ``--downscale``, where neither the command line nor the ``--config`` file gives
-them, come from :func:`plan_run`: a resumed run's own; on a CPU adapter (lavapipe, llvmpipe) the
-quick preset at a downscale that keeps a training image within :data:`CPU_MAX_PIXELS`, so that a
-first ``tsplus train SCENE --out DIR`` takes minutes, not days; else the paper preset at full
-size. The plan is printed before training, and after the first timed steps a one-line estimate
-of the run's duration (:class:`~tsplus_wgpu.train.callbacks.RateEstimate`)."""
+The preset, the iterations and ``--downscale``, where neither the command line nor the
+``--config`` file gives them, come from :mod:`.plan`: a resumed run's own; on a CPU adapter
+(lavapipe, llvmpipe) the quick preset at a small size with the iterations that fit about a quarter
+of an hour; else the paper preset at full size. The plan is printed before training, and after
+the first timed steps a one-line estimate of the run's duration
+(:class:`~tsplus_wgpu.train.callbacks.RateEstimate`)."""
 
 from __future__ import annotations
 
@@ -20,9 +20,8 @@ import json
 import os
 import sys
 import tempfile
-import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -30,27 +29,12 @@ import numpy as np
 from ..errors import UserError
 from ..io.atomic import describe, remove_orphans, write_bytes, write_error, write_image, write_json
 from ..train.config import TrainConfig, check_settings, cli_options, preset_defaults
+from .plan import CPU_MAX_PIXELS, Plan, cpu_downscale, cpu_iterations, plan_lines, plan_run  # noqa: F401 (re-exported)
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
 _FROM_FLAG = {**{k: (lambda v: v == "on") for k in ("topology", "shell", "carve", "final_prune", "fill_holes",
                                                     "remove_shards", "color_detail")},
               "normals": lambda v: str(Path(v).resolve())}
-
-#: the most pixels of a training image when ``tsplus train`` picks the downscale for a CPU adapter:
-#: 2**15 keeps the common 16:9 and 4:3 captures at a quarter or an eighth of their size (960x540 ->
-#: 240x135, 1080x1920 -> 135x240, 32,400 pixels each). The paper's run at full size takes days there.
-CPU_MAX_PIXELS = 2**15
-#: the iterations of a quick run that ``tsplus train`` picks for a CPU adapter (neither ``--preset``,
-#: ``--iterations`` nor a ``--config`` file says). Measured on the four shared real scenes at
-#: <= 32,768 pixels, 2 cores: 3.5-14 min (docs/measurements.md); the quick preset's own 3000 took
-#: the cup 71 min.
-CPU_ITERATIONS = 600
-#: the plan's rough duration on 2 cores: seconds per iteration = CPU_SECONDS_PER_PIXEL x training
-#: pixels + CPU_SECONDS_PER_TRIANGLE x the initial mesh's triangles (a least-squares fit to the
-#: 600-iteration runs of the shared real scenes; the initial mesh is drawn until the first prune)
-CPU_SECONDS_PER_PIXEL = 8.4e-6
-CPU_SECONDS_PER_TRIANGLE = 5.9e-6
-
 
 def add_parser(sub):
     p = sub.add_parser(
@@ -154,101 +138,6 @@ def resolve_settings(args):
         raise ValueError(f"--checkpoint-every: expected >= 0, got {settings['checkpoint_every']}")
     args.seed = settings.get("seed", defaults.seed)
     return settings
-
-
-def cpu_downscale(width, height, max_pixels=CPU_MAX_PIXELS):
-    """The smallest integer factor d >= 1 whose ``--downscale d`` leaves a ``width`` x ``height``
-    image at most ``max_pixels`` pixels (its sides rounded as the loader rounds them), short of
-    one that would leave a side under the loader's minimum."""
-    from ..data.plausible import MIN_TRAIN_SIDE
-    from ..data.scene import downscaled_size
-    d = 1
-    while (math.prod(downscaled_size(width, height, d)) > max_pixels
-           and min(downscaled_size(width, height, d + 1)) >= MIN_TRAIN_SIDE):
-        d += 1
-    return d
-
-
-@dataclass(frozen=True)
-class Plan:
-    """What a run trains with where the command line leaves it open: ``preset`` (``"paper"``,
-    ``"quick"``, or None: the ``--config`` file's), ``downscale``, and where each came from
-    (``preset_from``, ``downscale_from``: ``"--preset"`` / ``"--downscale"``, ``"--config"``,
-    ``"checkpoint"``, ``"CPU adapter"`` or ``"default"``); ``iterations`` where the plan sets
-    them: a resumed run's own, or the CPU adapter's quick run (:data:`CPU_ITERATIONS`)."""
-
-    preset: str | None
-    downscale: int
-    preset_from: str
-    downscale_from: str
-    #: the iterations the plan sets (None: the flag's, the config file's or the preset's) and
-    #: where they came from (``"CPU adapter"`` or ``"checkpoint"``)
-    iterations: int | None = None
-    iterations_from: str | None = None
-
-
-def plan_run(args, is_cpu, image_sizes, checkpoint=None):
-    """The run's preset and downscale (:class:`Plan`). ``--preset`` and ``--downscale`` stand as
-    given, and a ``--config`` file that sets ``quick`` or ``iterations`` chooses the preset. What
-    is left open: resuming (``checkpoint``: the checkpoint's config), the run's own, so a plain
-    ``--resume`` continues its run; on a CPU adapter (``is_cpu``), the quick preset of
-    :data:`CPU_ITERATIONS` (unless ``--iterations`` is given) and :func:`cpu_downscale` of the
-    largest image (``image_sizes()``: every image's ``(width, height)`` before any downscale; not asked for the procedural scene, whose sizes are fixed);
-    else the paper preset at full size."""
-    from .scenes import is_procedural
-    preset, preset_from = args.preset, "--preset"
-    if preset is None:
-        if {"quick", "iterations"} & set(load_config_file(args.config) if args.config else {}):
-            preset_from = "--config"
-        elif checkpoint is not None:
-            preset, preset_from = ("quick" if checkpoint.get("quick") else "paper"), "checkpoint"
-        else:
-            preset, preset_from = ("quick", "CPU adapter") if is_cpu else ("paper", "default")
-    downscale, downscale_from = args.downscale, "--downscale"
-    if downscale is None:
-        if checkpoint is not None:
-            downscale, downscale_from = int((checkpoint.get("extra") or {}).get("downscale", 1)), "checkpoint"
-        elif is_cpu and not is_procedural(args.scene):
-            downscale = max(cpu_downscale(w, h) for w, h in set(image_sizes()))
-            downscale_from = "CPU adapter"
-        else:
-            downscale, downscale_from = 1, "default"
-    iterations, iterations_from = None, None
-    if args.iterations is None and checkpoint is not None and "iterations" in checkpoint:
-        iterations, iterations_from = int(checkpoint["iterations"]), "checkpoint"
-    elif args.iterations is None and preset_from == "CPU adapter":
-        iterations, iterations_from = CPU_ITERATIONS, "CPU adapter"
-    return Plan(preset, downscale, preset_from, downscale_from, iterations, iterations_from)
-
-
-#: how the plan line names where a choice came from (:attr:`Plan.preset_from`, ``downscale_from``)
-_FROM_TEXT = {"--preset": "as given", "--downscale": "as given", "--config": "from --config",
-              "checkpoint": "the run's own", "CPU adapter": "for the CPU adapter", "default": "default"}
-
-
-def plan_lines(plan, cfg, scene, triangles=0):
-    """What ``tsplus train`` prints about its plan: the preset, the iterations and the training
-    size, each with where it came from; for a CPU adapter's choices, a line with the rough
-    duration (:data:`CPU_SECONDS_PER_PIXEL`, :data:`CPU_SECONDS_PER_TRIANGLE` of the initial
-    mesh's ``triangles``) and how to ask for the paper's run instead."""
-    cam = scene.cameras[scene.train_indices[0]]
-    size = f"{cam.width}x{cam.height}"
-    by_cpu = plan.iterations_from == "CPU adapter"
-    lines = [f"plan: {'quick' if cfg.quick else 'paper'} preset ({_FROM_TEXT[plan.preset_from]}), "
-             f"{cfg.iterations:,} iterations"
-             f"{f' ({_FROM_TEXT[plan.iterations_from]})' if plan.iterations_from else ''} at {size} "
-             f"(--downscale {plan.downscale}, {_FROM_TEXT[plan.downscale_from]})"]
-    cpu = [(chose, undo) for chose, undo, by in (
-        ("quick preset", "--preset paper", plan.preset_from),
-        (f"{cfg.iterations:,} iterations", None, "CPU adapter" if by_cpu else None),
-        (f"--downscale {plan.downscale} ({size})", "--downscale 1", plan.downscale_from)) if by == "CPU adapter"]
-    if cpu:
-        from ..train.callbacks import duration_text
-        seconds = cfg.iterations * (CPU_SECONDS_PER_PIXEL * cam.width * cam.height
-                                    + CPU_SECONDS_PER_TRIANGLE * triangles)
-        lines.append(f"CPU adapter: {', '.join(c for c, _ in cpu)} so the run takes about {duration_text(seconds)} on "
-                     f"2 cores; pass {' '.join(u for _, u in cpu if u)} for the paper's run")
-    return lines
 
 
 def config_for_scene(args, settings, scene):
@@ -451,6 +340,8 @@ def run(args):
     settings = resolve_settings(args)
     scene = load_cli_scene(args.scene, args.downscale, args.seed, images=args.images,   # prints its warnings
                            points=args.points)
+    if plan.iterations_from == "CPU adapter":     # what fits a quarter of an hour, now that the scene is known
+        settings["iterations"] = cpu_iterations(TrainConfig(**settings), scene)
     cfg = config_for_scene(args, settings, scene)
     trainer = _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded)
     del loaded

@@ -129,7 +129,7 @@ class TrainConfig:
     ``opacity`` are the paper's Tables 2-3 (:class:`~.schedules.Schedule` documents each,
     ``ablations.ABLATIONS`` names the rows)."""
 
-    iterations: int = option(30000, "optimisation steps (the paper: 30000; tsplus train on a CPU adapter without --preset: 600)", flag="--iterations", quick=3000,
+    iterations: int = option(30000, "optimisation steps (the paper: 30000; tsplus train on a CPU adapter without --preset: 600-3000, as many as fit about 11 minutes of training on 2 cores)", flag="--iterations", quick=3000,
                              check=integer(1, MAX_ITERATIONS), type=int)
     quick: bool = option(False, "scale every schedule's iteration constants to `iterations` (--preset quick)", check=boolean())
     indoor: bool = option(False, "the indoor constants of method.md", flag="--indoor", check=boolean(),
