@@ -39,6 +39,9 @@ LEVEL_PX = (16.0, 8.0, 4.0, 2.0)
 #: no subdivision when the vertex budget leaves room for fewer than this fraction more vertices (a
 #: model trained up to its budget: the validation fits would cost minutes and could add nothing)
 MIN_ROOM = 0.05
+#: a level must beat the best so far by this many standard errors of its per-view gain (0: any
+#: lower mean error on the held-back views)
+SIGNIFICANCE = 0.0
 #: samples per pixel side when the held-back views are drawn
 VALIDATION_SUPERSAMPLE = 2
 
@@ -151,12 +154,15 @@ def colour_detail(positions, triangles, colors, cameras, images, fit, draw, budg
 
     def validate(pos, t, col):
         c = fit(pos, t, col, fitted)
-        err = [np.mean((np.asarray(draw(pos, t, c, v), np.float64) - images[v]) ** 2) for v in held]
-        return float(np.mean(err))
+        return np.array([np.mean((np.asarray(draw(pos, t, c, v), np.float64) - images[v]) ** 2) for v in held])
+
+    def level(px, err):
+        return dict(px=px, vertices=len(pos), triangles=len(tri), psnr=_psnr(np.mean(err)),
+                    view_psnr=[round(_psnr(e), 4) for e in err])
 
     pos, col = np.asarray(positions, np.float64), np.asarray(colors, np.float64)
-    steps, best = [], (validate(pos, tri, col), tri, 0, 0)     # (mse, triangles, steps, level)
-    info["levels"].append(dict(px=None, vertices=len(pos), triangles=len(tri), psnr=_psnr(best[0])))
+    steps, best = [], (validate(pos, tri, col), tri, 0, 0)     # (per-view mse, triangles, steps, level)
+    info["levels"].append(level(None, best[0]))
     for px in LEVEL_PX:
         step = refine_level(len(pos), tri, pixel_size(pos, tri, cameras), px, budget - len(pos),
                             max_triangles - len(tri))
@@ -165,12 +171,26 @@ def colour_detail(positions, triangles, colors, cameras, images, fit, draw, budg
         tri, edges = step
         pos, col = with_midpoints(pos, edges), with_midpoints(col, edges)
         steps.append(edges)
-        mse = validate(pos, tri, col)
-        info["levels"].append(dict(px=px, vertices=len(pos), triangles=len(tri), psnr=_psnr(mse)))
-        if mse < best[0]:
-            best = (mse, tri, len(steps), len(info["levels"]) - 1)
+        err = validate(pos, tri, col)
+        info["levels"].append(level(px, err))
+        if better(best[0], err):
+            best = (err, tri, len(steps), len(info["levels"]) - 1)
     _, tri, n_steps, info["chosen"] = best
     return tri, steps[:n_steps], info
+
+
+def better(best, new):
+    """Whether a level whose held-back views have the per-view squared errors ``new`` beats the
+    best so far (``best``): a lower mean error, and per-view gains (dB) whose mean is at least
+    :data:`SIGNIFICANCE` standard errors above zero (one view's luck does not decide)."""
+    best, new = np.asarray(best, np.float64), np.asarray(new, np.float64)
+    if not np.mean(new) < np.mean(best):
+        return False
+    if SIGNIFICANCE <= 0 or len(new) < 2:
+        return True
+    gain = 10.0 * np.log10(np.maximum(best, 1e-20) / np.maximum(new, 1e-20))
+    spread = float(np.std(gain, ddof=1)) / np.sqrt(len(gain))
+    return float(np.mean(gain)) >= SIGNIFICANCE * spread
 
 
 def _psnr(mse):
