@@ -98,6 +98,9 @@ def test_the_plan_lines_say_what_was_chosen_and_how_to_undo_it():
     early, late = 2.2e-6 * 30_000 + 2.26e-6 * 100_000, 1.08 * (2.2e-6 * 30_000 + 2.26e-6 * 60_000)
     assert planning.cpu_seconds(dataclasses.replace(cfg, iterations=600), scene.cameras, 100_000) == \
         pytest.approx(89 * early + 511 * late, rel=1e-12)                  # 137 s
+    # the shape of that model, for the early estimate (RateEstimate's later_cost): 0.75x; no prune, no shape
+    assert planning.cpu_late_ratio(cfg, scene.cameras, 100_000) == pytest.approx(late / early, rel=1e-12)
+    assert planning.cpu_late_ratio(dataclasses.replace(cfg, topology=False), scene.cameras, 100_000) is None
     assert plan_lines(cpu, dataclasses.replace(cfg, iterations=600), scene, triangles=100_000) == [
         "plan: quick preset (for the CPU adapter), 600 iterations (for the CPU adapter) at 200x150 (--downscale 4, "
         "for the CPU adapter)",

@@ -117,3 +117,30 @@ def test_rate_estimate_reports_after_the_warm_up_and_after_the_first_prune(monke
             pruned = pruned or (it - first >= 25 and sched.is_prune_step(it))
         assert lines == said
     assert [duration_text(s) for s in (42, 900, 4 * 3600, 3 * 86400)] == ["42 s", "15 min", "4.0 h", "3.0 days"]
+
+
+def test_the_first_estimate_takes_the_steps_after_the_first_prune_at_the_time_models_rate(monkeypatch):
+    """With ``later_cost`` (a CPU run's time model: an iteration after the first prune costs
+    0.25x one before it), the first estimate counts the 424 iterations before the prune at 450
+    at the measured 1.0 it/s and the 2,551 from it on at 4.0 it/s: 424 + 637.75 s, not 2,975 s;
+    the estimate after the prune is the measured one as before."""
+    import time as clock
+    from types import SimpleNamespace
+
+    from tsplus_wgpu.train.callbacks import RateEstimate
+    from tsplus_wgpu.train.schedules import Schedule
+    now = [0.0]
+    monkeypatch.setattr(clock, "perf_counter", lambda: now[0])
+    sched = Schedule(total=3000, quick=True)
+    trainer = SimpleNamespace(config=SimpleNamespace(iterations=3000, topology=True), sched=sched)
+    lines = []
+    cb = RateEstimate(report=lines.append, later_cost=0.25)
+    pruned = False
+    for it in range(1, 600):
+        now[0] += 3.0 if it <= 5 else (0.5 if pruned else 1.0)
+        cb.after_step(trainer, it, {})
+        pruned = pruned or (it >= 25 and sched.is_prune_step(it))
+    assert lines == ["estimate: 2,975 iterations left, at 1.0 it/s until the first prune (iteration 450) and about "
+                     "4.0 it/s after it by the time model -> about 18 min (measured over steps 6-25)",
+                     "estimate after the first prune: 2,530 iterations left at 2.0 it/s -> about 21 min "
+                     "(measured over steps 451-470)"]

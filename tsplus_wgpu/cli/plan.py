@@ -71,15 +71,31 @@ def cpu_seconds(cfg, cameras, triangles):
     ``triangles`` drawn at each iteration until the first prune, then :data:`CPU_LATE_FACTOR` x
     the cost of the run's vertex cap in triangles (``cameras``: the training cameras at the
     training size; :data:`CPU_SECONDS_PER_PIXEL`, :data:`CPU_SECONDS_PER_TRIANGLE`)."""
+    early, late = _iteration_seconds(cfg, cameras, triangles)
+    if late is None:
+        return cfg.iterations * early
+    pre = min(int(cfg.iterations), first_prune(cfg, len(cameras)) - 1)
+    return pre * early + (int(cfg.iterations) - pre) * late
+
+
+def cpu_late_ratio(cfg, cameras, triangles):
+    """How many times an iteration after the first prune costs one before it, by the time model
+    of :func:`cpu_seconds` (None without topology: no prune); for the early estimate of
+    :class:`~tsplus_wgpu.train.callbacks.RateEstimate`, which measures the slow first steps."""
+    early, late = _iteration_seconds(cfg, cameras, triangles)
+    return None if late is None else late / early
+
+
+def _iteration_seconds(cfg, cameras, triangles):
+    """The modelled seconds of one iteration before the first prune (the initial mesh's
+    ``triangles``) and after it (None without topology)."""
     from ..train.strategy.cap import vertex_cap
     pixels = float(sum(c.width * c.height for c in cameras)) / max(1, len(cameras))
     early = CPU_SECONDS_PER_PIXEL * pixels + CPU_SECONDS_PER_TRIANGLE * triangles
     if not cfg.topology:
-        return cfg.iterations * early
-    late = CPU_LATE_FACTOR * (CPU_SECONDS_PER_PIXEL * pixels
-                              + CPU_SECONDS_PER_TRIANGLE * vertex_cap(cfg, cameras).vertices)
-    pre = min(int(cfg.iterations), first_prune(cfg, len(cameras)) - 1)
-    return pre * early + (int(cfg.iterations) - pre) * late
+        return early, None
+    return early, CPU_LATE_FACTOR * (CPU_SECONDS_PER_PIXEL * pixels
+                                     + CPU_SECONDS_PER_TRIANGLE * vertex_cap(cfg, cameras).vertices)
 
 
 def cpu_iterations(cfg, scene, seconds=CPU_TRAIN_SECONDS):

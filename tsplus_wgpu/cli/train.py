@@ -29,7 +29,9 @@ import numpy as np
 from ..errors import UserError
 from ..io.atomic import describe, remove_orphans, write_bytes, write_error, write_image, write_json
 from ..train.config import TrainConfig, check_settings, cli_options, preset_defaults
-from .plan import CPU_MAX_PIXELS, Plan, cpu_downscale, cpu_iterations, plan_lines, plan_run  # noqa: F401 (re-exported)
+# re-exported (the tests and older callers import them from here)
+from .plan import (CPU_MAX_PIXELS, Plan, cpu_downscale, cpu_iterations, cpu_late_ratio, plan_lines,  # noqa: F401
+                   plan_run)
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
 _FROM_FLAG = {**{k: (lambda v: v == "on") for k in ("topology", "shell", "carve", "final_prune", "fill_holes",
@@ -348,9 +350,11 @@ def run(args):
     from .view import attach_live_viewer
     viewer = attach_live_viewer(trainer, args)   # --view: the live window, drawn between steps
     psnr0 = trainer.evaluate()[0] if trainer.iteration == 0 else None
+    later = (cpu_late_ratio(cfg, [scene.cameras[i] for i in scene.train_indices], trainer.m)   # the time model's
+             if ctx.is_cpu else None)                                                          # shape, on a CPU
     try:
         trainer.train(out_dir=out, progress=not args.no_progress, checkpoint_at_end=False,
-                      callbacks=[RateEstimate(report=tqdm.write)])     # one line, beside the progress bar
+                      callbacks=[RateEstimate(report=tqdm.write, later_cost=later)])   # beside the progress bar
     except Interrupted as exc:
         import signal
         signum = exc.signum or signal.SIGINT

@@ -50,19 +50,45 @@ class RateEstimate(TrainCallback):
     until iteration 601 of 3000, then a fraction of them). So the estimate is said once more,
     measured over ``steps`` steps after the first prune ("estimate after the first prune: ...").
     Later steps may still run at another rate (the supersampled last third, a model
-    densification grew): the lines answer "minutes or days?", they are not a promise."""
+    densification grew): the lines answer "minutes or days?", they are not a promise.
 
-    def __init__(self, report=print, warmup=5, steps=20):
+    ``later_cost`` (optional): how many times an iteration after the first prune costs one
+    before it, by a time model (``tsplus train`` on a CPU adapter:
+    :func:`~tsplus_wgpu.cli.plan.cpu_late_ratio`). With it the first estimate, made before the
+    first prune, takes the iterations after the prune at the measured rate / ``later_cost``
+    instead of at the slow rate of the initial mesh."""
+
+    def __init__(self, report=print, warmup=5, steps=20, later_cost=None):
         self.report, self.warmup, self.steps = report, max(1, int(warmup)), max(1, int(steps))
+        self.later_cost = later_cost
         self.first = self.start = None
         self.pruned_at = None          # (iteration, clock) of the first prune
         self.done_after_prune = False
 
     def _say(self, trainer, it, start, what):
         rate = self.steps / max(time.perf_counter() - start, 1e-9)
-        left = int(trainer.config.iterations) - it
-        self.report(f"{what}: {left:,} iterations left at {rate:.1f} it/s -> about {duration_text(left / rate)} "
-                    f"(measured over steps {it - self.steps + 1}-{it})")
+        total = int(trainer.config.iterations)
+        left = total - it
+        prune = self._first_prune_ahead(trainer, it) if self.later_cost and what == "estimate" else None
+        if prune is None:
+            self.report(f"{what}: {left:,} iterations left at {rate:.1f} it/s -> about "
+                        f"{duration_text(left / rate)} (measured over steps {it - self.steps + 1}-{it})")
+            return
+        later = rate / self.later_cost
+        seconds = (prune - 1 - it) / rate + (total - prune + 1) / later
+        self.report(f"{what}: {left:,} iterations left, at {rate:.1f} it/s until the first prune (iteration "
+                    f"{prune:,}) and about {later:.1f} it/s after it by the time model -> about "
+                    f"{duration_text(seconds)} (measured over steps {it - self.steps + 1}-{it})")
+
+    @staticmethod
+    def _first_prune_ahead(trainer, it):
+        """The run's first prune step when it comes after ``it`` (None: topology off, no prune,
+        or the first one is past)."""
+        sched = getattr(trainer, "sched", None)
+        if sched is None or not trainer.config.topology:
+            return None
+        first = next((i for i in range(1, int(trainer.config.iterations) + 1) if sched.is_prune_step(i)), None)
+        return first if first is not None and first > it else None
 
     def after_step(self, trainer, it, info):
         if self.first is None:
