@@ -143,7 +143,7 @@ def plan_run(args, is_cpu, image_sizes, checkpoint=None):
     largest image (``image_sizes()``: every image's ``(width, height)`` before any downscale; not
     asked for the procedural scene, whose sizes are fixed); else the paper preset at full size."""
     from .scenes import is_procedural
-    from .train import load_config_file
+    from ..train.config import load_config_file
     preset, preset_from = args.preset, "--preset"
     if preset is None:
         if {"quick", "iterations"} & set(load_config_file(args.config) if args.config else {}):

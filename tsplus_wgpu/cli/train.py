@@ -16,7 +16,6 @@ the first timed steps a one-line estimate of the run's duration
 from __future__ import annotations
 
 import errno
-import json
 import os
 import sys
 import tempfile
@@ -28,7 +27,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..io.atomic import describe, remove_orphans, write_bytes, write_error, write_image, write_json
-from ..train.config import TrainConfig, check_settings, cli_options, preset_defaults
+from ..train.config import TrainConfig, check_settings, cli_options, load_config_file, preset_defaults  # noqa: F401
 # re-exported (the tests and older callers import them from here)
 from .plan import (CPU_MAX_PIXELS, Plan, cpu_downscale, cpu_iterations, cpu_late_ratio, plan_lines,  # noqa: F401
                    plan_run)
@@ -91,28 +90,6 @@ def _atomic_ply(path, positions, triangles, colors):
     mesh = trimesh.Trimesh(vertices=np.asarray(positions, np.float64), faces=np.asarray(triangles, np.int64),
                            vertex_colors=rgba, process=False)
     write_bytes(path, mesh.export(file_type="ply"))
-
-
-def load_config_file(path):
-    """The keys of a ``--config`` file (JSON, or TOML by its ``.toml`` suffix), checked
-    against :class:`~tsplus_wgpu.train.config.TrainConfig`'s fields (``adapter``, written to
-    config.json, is ignored)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"--config {path}: no such file")
-    try:
-        if path.suffix.lower() == ".toml":
-            import tomllib
-            data = tomllib.loads(path.read_text())
-        else:
-            data = json.loads(path.read_text())
-    except Exception as exc:
-        raise ValueError(f"--config {path}: not valid {'TOML' if path.suffix.lower() == '.toml' else 'JSON'} "
-                         f"({exc})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"--config {path}: expected a table of settings")
-    data.pop("adapter", None)
-    return check_settings(data, source=f"--config {path}")     # unknown keys, types and ranges: one line
 
 
 def resolve_settings(args):

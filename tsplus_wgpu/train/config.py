@@ -12,10 +12,12 @@ type and range it accepts, enforced in one place (:func:`check_settings`) for th
 from __future__ import annotations
 
 import difflib
+import json
 import math
 import numbers
 import os
 from dataclasses import MISSING, dataclass, field, fields
+from pathlib import Path
 
 from ..data.frame import NEAR
 from ..errors import UserError
@@ -342,5 +344,27 @@ def cli_options():
     return out
 
 
+def load_config_file(path):
+    """The keys of a ``--config`` file (JSON, or TOML by its ``.toml`` suffix), checked
+    against :class:`~tsplus_wgpu.train.config.TrainConfig`'s fields (``adapter``, written to
+    config.json, is ignored)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"--config {path}: no such file")
+    try:
+        if path.suffix.lower() == ".toml":
+            import tomllib
+            data = tomllib.loads(path.read_text())
+        else:
+            data = json.loads(path.read_text())
+    except Exception as exc:
+        raise ValueError(f"--config {path}: not valid {'TOML' if path.suffix.lower() == '.toml' else 'JSON'} "
+                         f"({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"--config {path}: expected a table of settings")
+    data.pop("adapter", None)
+    return check_settings(data, source=f"--config {path}")     # unknown keys, types and ranges: one line
+
+
 __all__ = ["TrainConfig", "ConfigError", "MAX_ITERATIONS", "MAX_VERTICES", "MAX_SEED", "check_settings", "option",
-           "preset_defaults", "cli_options"]
+           "preset_defaults", "cli_options", "load_config_file"]
