@@ -139,6 +139,8 @@ def test_colour_detail_keeps_the_level_the_held_back_views_prefer(best_vertices)
     psnr = [lv["psnr"] for lv in info["levels"]]
     assert info["held_back"] == 3 and info["chosen"] == int(np.argmax(psnr))
     assert info["chosen"] == min(best_vertices, len(info["levels"]) - 1)
+    for lv in info["levels"]:       # the per-view record: one PSNR per held-back view (all alike here)
+        assert lv["view_psnr"] == pytest.approx([lv["psnr"]] * 3, abs=1e-4)
     p, t = pos, tri
     for edges in steps:
         t, e = split_triangles(t, np.ones(len(t), bool), len(p))   # the plane is split everywhere here
