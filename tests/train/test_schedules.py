@@ -177,3 +177,10 @@ def test_floor_still_ends_opaque_when_the_run_is_too_short_for_a_hard_prune():
     for total in (2, 6, 12, 16, 40):
         s = Schedule(total=total, quick=True, views=21, topology_epochs=3)
         assert s.opacity_floor(total) == pytest.approx(0.9999), total
+
+
+@pytest.mark.parametrize("total", [1, 30, 600, 2200, 3000, 30000])
+@pytest.mark.parametrize("quick", [True, False])
+def test_first_prune_step_is_the_first_iteration_that_prunes(total, quick):
+    s = Schedule(total=total, quick=quick)
+    assert s.first_prune_step() == next((i for i in range(1, total + 1) if s.is_prune_step(i)), None)

@@ -61,9 +61,8 @@ def cpu_downscale(width, height, max_pixels=CPU_MAX_PIXELS):
 def first_prune(cfg, views):
     """The iteration of ``cfg``'s first prune step with ``views`` training views (the last
     iteration + 1 when there is none)."""
-    sched = cfg.schedule(views)
-    return next((it for it in range(1, int(cfg.iterations) + 1) if sched.is_prune_step(it)),
-                int(cfg.iterations) + 1)
+    first = cfg.schedule(views).first_prune_step()
+    return int(cfg.iterations) + 1 if first is None else first
 
 
 def cpu_seconds(cfg, cameras, triangles):

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..io.atomic import describe, remove_orphans, write_bytes, write_error, write_image, write_json
-from ..train.config import TrainConfig, check_settings, cli_options, load_config_file, preset_defaults  # noqa: F401
+from ..train.config import TrainConfig, check_settings, cli_options, load_config_file, preset_defaults
 # re-exported (the tests and older callers import them from here)
 from .plan import (CPU_MAX_PIXELS, Plan, cpu_downscale, cpu_iterations, cpu_late_ratio, plan_lines,  # noqa: F401
                    plan_run)

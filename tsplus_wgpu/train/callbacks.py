@@ -87,7 +87,7 @@ class RateEstimate(TrainCallback):
         sched = getattr(trainer, "sched", None)
         if sched is None or not trainer.config.topology:
             return None
-        first = next((i for i in range(1, int(trainer.config.iterations) + 1) if sched.is_prune_step(i)), None)
+        first = sched.first_prune_step()
         return first if first is not None and first > it else None
 
     def after_step(self, trainer, it, info):

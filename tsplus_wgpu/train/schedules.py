@@ -238,6 +238,11 @@ class Schedule:
         after, every = self.at(self._pick(PRUNE_AFTER)), self.topology_every()
         return it > after and (it - after) % every == 0
 
+    def first_prune_step(self):
+        """The first iteration :meth:`is_prune_step` holds for (None: the run ends before it)."""
+        first = self.at(self._pick(PRUNE_AFTER)) + self.topology_every()
+        return first if first <= self.total else None
+
     def is_hard_prune_step(self, it):
         """The hard prune of the paper (iteration 5000; in a quick run with a longer topology
         interval, the first prune step at or after it)."""
