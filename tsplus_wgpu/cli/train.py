@@ -269,8 +269,7 @@ def _finish(trainer, scene, out, ckpt, psnr0):
     fin = trainer.final_info
     colours = f"fitted to {fin['color_fit']['views']} training views" if fin["color_fit"] else "from SH DC"
     print(f"exported mesh: {len(tri):,} triangles, {fin['filled_triangles']:,} of them a backdrop filling holes of "
-          f"the training views; {fin['shards']:,} shards removed ({fin.get('near_floaters', 0):,} of them floaters at "
-          f"a training camera); vertex colours {colours}")
+          f"the training views; {fin['shards']:,} shards removed; vertex colours {colours}")
     if fin.get("detail") is not None:
         print(detail_line(fin["detail"]))
     trainer.save_checkpoint(ckpt)

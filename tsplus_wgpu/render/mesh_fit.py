@@ -37,11 +37,10 @@ MAX_SAMPLES = 1 << 21
 ID_BASE = 2048      # triangle id = r + ID_BASE * g: both channels stay exact in float32 interpolation
 
 
-def triangle_ids(mesh_renderer, positions, triangles, camera: Camera, near, drop_near=True) -> np.ndarray:
+def triangle_ids(mesh_renderer, positions, triangles, camera: Camera, near) -> np.ndarray:
     """``[H, W]`` int64: the triangle the depth-tested mesh renderer draws at each pixel
     centre of ``camera`` (-1: none). Triangles with a vertex at ``z <= near`` are not drawn,
-    as in :meth:`MeshRenderer.render`, or clipped at the near plane as engines draw them
-    (``drop_near=False``)."""
+    as in :meth:`MeshRenderer.render`."""
     tri = np.asarray(triangles, np.int64).reshape(-1, 3)
     m = len(tri)
     if m >= ID_BASE * ID_BASE:
@@ -50,8 +49,7 @@ def triangle_ids(mesh_renderer, positions, triangles, camera: Camera, near, drop
     k = np.arange(m, dtype=np.int64)
     ids = np.stack([k % ID_BASE, k // ID_BASE, np.zeros(m, np.int64)], 1).astype(np.float32)
     col = np.repeat(ids, 3, axis=0)
-    res = mesh_renderer.render((pos, np.arange(3 * m, dtype=np.int64).reshape(-1, 3), col), camera, near=near,
-                               drop_near=drop_near)
+    res = mesh_renderer.render((pos, np.arange(3 * m, dtype=np.int64).reshape(-1, 3), col), camera, near=near)
     img = np.asarray(res.image, np.float64)
     out = np.rint(img[..., 0]).astype(np.int64) + ID_BASE * np.rint(img[..., 1]).astype(np.int64)
     out[res.coverage <= 0] = -1

@@ -39,12 +39,10 @@ def final_mesh(trainer):
     ``trainer``'s model (module docstring)."""
     t, cfg = trainer, trainer.config
     keep = cleanup_mask(t)
-    t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, near_floaters=0)
+    t.final_info = dict(filled_triangles=0, color_fit=None, shards=0)
     mesh = _exported(t, keep)
     if cfg.remove_shards and len(mesh[2]):
-        floaters = find_near_floaters(t, *mesh)
-        shards = find_shards(t, *mesh) | floaters
-        t.final_info["near_floaters"] = int(floaters.sum())
+        shards = find_shards(t, *mesh)
         if shards.any():
             t.final_info["shards"] = int(shards.sum())
             mesh = _exported(t, keep & ~shards)
@@ -123,48 +121,6 @@ def find_shards(trainer, pos_frame, pos_world, tris, colors, source):
     groups = t.groups if t.groups is not None else np.zeros(t.m, np.int8)
     surface = (source >= 0) & (groups[np.maximum(source, 0)] == SURFACE)
     bad = surface & (edge > SHARD_ANGLE * dist) & (mean_err > SHARD_RESIDUAL * total / max(drawn, 1))
-    out = np.zeros(t.m, bool)
-    out[source[bad]] = True
-    return out
-
-
-def find_near_floaters(trainer, pos_frame, pos_world, tris, colors, source):
-    """``[M]`` bool over the trainer's triangles: the floaters at the training cameras. The
-    splatting renderer, and so the training, never draws a triangle with a vertex at or behind
-    a view's near plane, so a triangle that passes through a training camera's near plane is
-    invisible to exactly the view that would have shown it to be wrong: the photos of the
-    cameras behind it fit it as a small patch of the far scene, and a viewpoint between them,
-    or an engine at that camera (engines clip at the near plane), sees it fill the screen.
-    A surface triangle is such a floater when, in some training view whose near plane it
-    crosses, drawing it clipped as an engine does makes that view's pixels it covers worse
-    than not drawing it (mean squared error against the photo, the exported colours). A
-    triangle the photo does show there (the ground under a camera) draws it better and is kept."""
-    from ..render.mesh_fit import triangle_ids
-    t = trainer
-    near = t.config.near
-    groups = t.groups if t.groups is not None else np.zeros(t.m, np.int8)
-    surface = (source >= 0) & (groups[np.maximum(source, 0)] == SURFACE)
-    tris = np.asarray(tris, np.int64)
-    bad = np.zeros(len(tris), bool)
-    for v in t.train_views:
-        cam = t.scene.cameras[v]
-        z = (pos_frame @ cam.R.T + cam.t)[:, 2][tris]
-        crossing = surface & (z.min(axis=1) <= near) & (z.max(axis=1) > near)
-        if not crossing.any():
-            continue
-        ids = triangle_ids(t.mesh_renderer, pos_frame, tris, cam, near, drop_near=False)
-        hit = ids >= 0
-        hit[hit] = crossing[ids[hit]]
-        if not hit.any():
-            continue
-        photo = t.scene.images[v]
-        err = {}
-        for drop in (False, True):
-            img = t.mesh_renderer.render((pos_frame, tris, colors), cam, near=near, drop_near=drop,
-                                         background=t.config.background).image
-            err[drop] = np.mean((np.asarray(img, np.float64) - photo) ** 2, axis=-1)[hit]
-        worse = np.bincount(ids[hit], weights=err[False] - err[True], minlength=len(tris))
-        bad |= worse > 0
     out = np.zeros(t.m, bool)
     out[source[bad]] = True
     return out
