@@ -12,8 +12,9 @@ Whether that helps depends on the scene. Where the geometry is right (a desk, a 
 the finer colours draw other viewpoints better; where it is off, sharper colours on the wrong
 surface draw them worse. So the choice is validated on the training views themselves: every
 :data:`VALIDATION_EVERY`-th training view is held back, each level's colours are fitted to the
-other training views, and the level whose held-back views are drawn best is kept (none when
-the mesh as trained is best). Then the kept mesh's colours are fitted to all training views.
+other training views, and the level whose held-back views are drawn best, by a clear margin
+(:func:`better`: a per-view gain :data:`SIGNIFICANCE` standard errors above zero), is kept
+(none when no level is). Then the kept mesh's colours are fitted to all training views.
 
 Levels are cumulative: level k splits the triangles whose longest edge is larger than
 :data:`LEVEL_PX` [k-1] pixels at the nearest training camera (at the median focal length;
