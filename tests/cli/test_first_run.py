@@ -19,6 +19,7 @@ from tsplus_wgpu.cli import plan as planning
 from tsplus_wgpu.cli.train import CPU_MAX_PIXELS, cpu_downscale, cpu_iterations, plan_lines, plan_run
 from tsplus_wgpu.data.scene import downscaled_size
 from tsplus_wgpu.train.config import TrainConfig
+from tsplus_wgpu.train.strategy.cap import initial_points_bound
 
 
 @pytest.mark.parametrize("size, factor, trained", [
@@ -113,8 +114,9 @@ def test_the_plan_lines_say_what_was_chosen_and_how_to_undo_it():
 
 def test_the_cpu_default_takes_the_most_iterations_that_fit_its_time():
     cfg = TrainConfig.preset(quick=True)
+    meshed = lambda scene: min(len(scene.points), initial_points_bound(cfg, scene.cameras))
     seconds = lambda n, scene: planning.cpu_seconds(dataclasses.replace(cfg, iterations=n), scene.cameras,
-                                                    planning.TRIANGLES_PER_POINT * len(scene.points))
+                                                    planning.TRIANGLES_PER_POINT * meshed(scene))
     chosen = {}
     for size, points in (((200, 150), 9000), ((240, 135), 9000), ((135, 240), 17_000), ((190, 142), 1500),
                          ((64, 48), 100)):
@@ -127,6 +129,10 @@ def test_the_cpu_default_takes_the_most_iterations_that_fit_its_time():
     assert chosen[(135, 240), 17_000] < chosen[(200, 150), 9000] < 3000 == chosen[(64, 48), 100]
     assert cpu_iterations(cfg, _scene(1000, 1000, views=50, points=100_000)) == 600          # never fewer
     assert cpu_iterations(cfg, _scene(200, 150, views=50, points=9000), seconds=10 ** 6) == 3000
+    # only the points the run meshes count: at most init_points_share (0.25) x the vertex cap (60,000) = 15,000
+    assert cpu_iterations(cfg, _scene(200, 150, views=50, points=150_000)) == \
+        cpu_iterations(cfg, _scene(200, 150, views=50, points=15_000)) > \
+        cpu_iterations(dataclasses.replace(cfg, init_points_share=0.0), _scene(200, 150, views=50, points=150_000))
 
 
 def _cli(*args, cwd):

@@ -120,3 +120,31 @@ def test_fox_points_auto_triangulates(tmp_path):
     # triangulated at full size: another downscale reuses the same points
     other = load_scene(scene_dir("fox"), downscale=4, frames=list(range(0, 10, 2)), cache_dir=tmp_path)
     assert np.array_equal(other.points, sc.points) and any("cached" in w for w in other.warnings)
+
+
+def test_lund_points_most_takes_the_larger_set_and_keeps_two_view_tracks(tmp_path, monkeypatch):
+    """``points="most"`` (``tsplus train --points auto``): the SfM points or the points triangulated
+    from the posed training views, whichever are more; the triangulation keeps two-view tracks."""
+    d = scene_dir("lund")
+    frames = list(range(0, 29, 3))
+    sfm = load_scene(d, downscale=8, frames=frames, cache_dir=tmp_path)
+    tri = load_scene(d, downscale=8, frames=frames, points="triangulate", cache_dir=tmp_path)
+    most = load_scene(d, downscale=8, frames=frames, points="most", cache_dir=tmp_path)
+    assert sfm.points_source == "sfm" and tri.points_source == "triangulated"
+    lengths = np.diff(tri.point_tracks[0])
+    print(f"lund, {len(frames)} frames: {len(sfm.points)} SfM points, {len(tri.points)} triangulated "
+          f"({np.count_nonzero(lengths == 2)} two-view)")
+    assert lengths.min() == 2 and np.count_nonzero(lengths == 2) > 0.2 * len(lengths)
+    larger = tri if len(tri.points) > len(sfm.points) else sfm
+    assert most.points_source == larger.points_source
+    np.testing.assert_array_equal(most.points, larger.points)
+    np.testing.assert_array_equal(most.point_tracks[0], larger.point_tracks[0])
+    np.testing.assert_array_equal(most.point_tracks[1], larger.point_tracks[1])
+    assert any(f"the {len(larger.points):,} " in w and "more than" in w for w in most.warnings)
+    # and the other way round: more triangulated points than SfM ones
+    import tsplus_wgpu.data.loader as loader
+    many = np.tile(tri.points, (len(sfm.points) // len(tri.points) + 1, 1))
+    monkeypatch.setattr(loader, "_triangulated", lambda *a, **k: (many, np.zeros_like(many), None))
+    other = load_scene(d, downscale=8, frames=frames, points="most", cache_dir=tmp_path)
+    assert other.points_source == "triangulated" and other.point_tracks is None
+    np.testing.assert_array_equal(other.points, many)

@@ -129,3 +129,39 @@ def test_training_rays_use_training_views_only():
     assert off.num_carved_faces == 0 and on.num_carved_faces > 0
     with pytest.raises(ValueError, match="point_tracks"):
         training_rays(replace(sc, point_tracks=(np.arange(3, dtype=np.int64), views[:2])))
+
+
+def test_initial_points_are_bounded_multi_view_first_the_same_for_every_seed():
+    from tsplus_wgpu.data.procedural import load_procedural
+    from tsplus_wgpu.train.initial import bounded_points
+    from tsplus_wgpu.train.strategy.cap import initial_points_bound, vertex_cap
+    sc = load_procedural(size="tiny")
+    n = len(sc.points)
+    tr, te = sc.train_indices, sc.test_indices[0]
+    # even points: 3 training views; odd points: 2 training views and the held-out one (3 in all)
+    views = np.array([[tr[0], tr[1], tr[2]] if k % 2 == 0 else [tr[0], tr[1], te] for k in range(n)], np.int32)
+    sc = replace(sc, point_tracks=(np.arange(0, 3 * n + 1, 3, dtype=np.int64), views.ravel()))
+    cams = [sc.cameras[i] for i in tr]
+    cfg = TrainConfig(shell=False, init_points_share=0.05)
+    most = initial_points_bound(cfg, cams)
+    assert most == int(np.ceil(0.05 * vertex_cap(cfg, cams).vertices)) and 3 <= most < (n + 1) // 2
+    pts, cols, tracks, dropped = bounded_points(sc, cfg)
+    assert len(pts) == most and dropped == n - most
+    kept = np.array([int(np.flatnonzero(np.all(sc.points == p, axis=1))[0]) for p in pts])
+    assert np.all(np.diff(kept) > 0) and np.all(kept % 2 == 0)      # in order; held-out views do not count
+    np.testing.assert_array_equal(cols, sc.point_colors[kept])
+    np.testing.assert_array_equal(tracks[1], views[kept].ravel())
+    assert kept.max() > 0.8 * n and kept.min() < 0.2 * n                # a random choice, not the first ones
+    again = bounded_points(sc, replace(cfg, seed=5))
+    np.testing.assert_array_equal(again[0], pts)                        # the view-order seed does not change it
+    info = initial_model(sc, cfg)[2]
+    assert info.num_input == most and info.num_bounded == n - most
+    # over the multi-view points: all of them, then the others
+    cfg2 = TrainConfig(shell=False, init_points_share=0.05 * (0.75 * n) / most)
+    pts2 = bounded_points(sc, cfg2)[0]
+    kept2 = np.array([int(np.flatnonzero(np.all(sc.points == p, axis=1))[0]) for p in pts2])
+    assert np.count_nonzero(kept2 % 2 == 0) == (n + 1) // 2 and len(kept2) > (n + 1) // 2
+    # share 0, or a bound over the points: all of them, as they are
+    for c in (TrainConfig(shell=False, init_points_share=0.0), TrainConfig(shell=False)):
+        got = bounded_points(sc, c)
+        assert got[0] is sc.points and got[3] == 0

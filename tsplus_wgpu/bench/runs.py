@@ -227,9 +227,11 @@ class Bench:
     def _load(self, plan, rec):
         """The plan's scene, its facts added to ``rec`` (None, with ``rec['status']``, when it does not load)."""
         from ..data import load_scene_arg
+        from ..data.loader import load_scene
         t0 = time.perf_counter()
-        try:
-            scene = load_scene_arg(plan.scene, plan.downscale)
+        try:   # a scene folder starts from the points `tsplus train` starts from (--points auto)
+            scene = (load_scene_arg(plan.scene, plan.downscale) if str(plan.scene).startswith("procedural")
+                     else load_scene(plan.scene, downscale=plan.downscale, points="most"))
             if not scene.train_indices:
                 raise ValueError("no training views")
             if scene.points is None or len(scene.points) < 3:

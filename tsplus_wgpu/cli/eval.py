@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..apps.evaluate import evaluate_mesh, mean_coverage, normal_error_summary, poisson_baseline
-from .scenes import add_images_arg, load_cli_scene, scene_warnings
+from .scenes import POINTS_CHOICES, TRAIN_POINTS, add_images_arg, load_cli_scene, scene_warnings
 from ..errors import UserError
 from ..io.atomic import write_json
 from ..apps.runs import load_run
@@ -27,7 +27,7 @@ def add_parser(sub):
                                    "draws) per view and mean (table + JSON), "
                                    "ground truth | render | error heat-map images, the trainer renderer's PSNR on "
                                    "the same views and the connectivity report. `tsplus eval --baseline poisson "
-                                   "SCENE` evaluates a Poisson mesh of the scene's SfM points the same way.")
+                                   "SCENE` evaluates a Poisson mesh of the scene's points the same way.")
     p.add_argument("inputs", nargs="+", metavar="RUN_OR_MESH SCENE",
                    help="run folder or mesh file, then the scene (folder or procedural[:tiny|small|demo]; default "
                         "for a run: the scene, --downscale and --images it was trained on, from its config.json); "
@@ -47,6 +47,9 @@ def add_parser(sub):
                    help="colour interpolation: perspective-correct as engines (default) or linear in screen space "
                         "as the splatting model")
     p.add_argument("--poisson-depth", type=int, default=9, help="Poisson octree depth (default 9)")
+    p.add_argument("--points", default="auto", choices=POINTS_CHOICES,
+                   help="with --baseline: the points the Poisson mesh is built from, as `tsplus train --points` "
+                        "takes them (default auto: the same points a training run starts from)")
     p.add_argument("--normals", default=None, metavar="DIR",
                    help="also report the mesh's normal error against these normal maps (the files and convention of "
                         "`tsplus train --normals`) on the evaluated views that have one: mean 1 - <N, P> and mean "
@@ -132,7 +135,8 @@ def run(args):
             scene_arg, downscale, images = _run_scene(args, run_arg, info)
             print(f"scene of the run: {scene_arg}" + (f" (--downscale {downscale})" if downscale != 1 else "")
                   + (f" (--images {images})" if images else ""))
-    scene = load_cli_scene(scene_arg, downscale, images=images)     # prints its warnings
+    scene = load_cli_scene(scene_arg, downscale, images=images,     # prints its warnings
+                           points=TRAIN_POINTS[args.points] if args.baseline else "auto")
     if args.baseline:
         tb = time.perf_counter()
         model = poisson_baseline(scene, depth=args.poisson_depth)

@@ -29,8 +29,10 @@ def _add_arguments(p):
     p.add_argument("--background", default=None,
                    help="'white', 'black' or 'R,G,B' in [0,1] for RGBA images (default: per format)")
     p.add_argument("--split", default="auto", help="'auto' (default), 'none' or 'everyK'")
-    p.add_argument("--points", default="auto", choices=("auto", "triangulate", "frusta", "none"),
-                   help="initial points when the scene has none (default auto: triangulate, else frusta)")
+    p.add_argument("--points", default="auto", choices=("auto", "most", "triangulate", "frusta", "none"),
+                   help="initial points (default auto: the SfM points; without them triangulated, else frusta); "
+                        "most: what `tsplus train --points auto` starts from (the SfM points or the triangulated "
+                        "ones, whichever are more)")
     p.add_argument("--strict", action="store_true", help="stop at the first missing or unreadable image")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--write-normals", default=None, metavar="DIR",

@@ -102,10 +102,14 @@ def cpu_iterations(cfg, scene, seconds=CPU_TRAIN_SECONDS):
     :class:`~tsplus_wgpu.train.config.TrainConfig`, whose own ``iterations`` are ignored) on
     ``scene`` (at the training size): the most, in steps of :data:`CPU_ITERATION_STEP` between
     :data:`CPU_MIN_ITERATIONS` and :data:`CPU_MAX_ITERATIONS`, whose :func:`cpu_seconds` (initial
-    mesh: :data:`TRIANGLES_PER_POINT` per point) fit ``seconds``."""
+    mesh: :data:`TRIANGLES_PER_POINT` per point it meshes, within
+    :func:`~tsplus_wgpu.train.strategy.cap.initial_points_bound`) fit ``seconds``."""
     from dataclasses import replace
+    from ..train.strategy.cap import initial_points_bound
     cams = [scene.cameras[i] for i in scene.train_indices]
-    triangles = TRIANGLES_PER_POINT * (0 if scene.points is None else len(scene.points))
+    points = 0 if scene.points is None else len(scene.points)
+    most = initial_points_bound(cfg, cams)
+    triangles = TRIANGLES_PER_POINT * (points if most is None else min(points, most))
     for n in range(CPU_MAX_ITERATIONS, CPU_MIN_ITERATIONS, -CPU_ITERATION_STEP):
         if cpu_seconds(replace(cfg, iterations=n), cams, triangles) <= seconds:
             return n

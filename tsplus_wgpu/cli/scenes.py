@@ -17,16 +17,19 @@ def add_images_arg(p, help=IMAGES_HELP):
     p.add_argument("--images", default=None, metavar="DIR", help=help)
 
 
-#: ``--points`` of ``tsplus train``: the initial points (``load_scene``'s ``points``)
-POINTS_CHOICES = ("auto", "triangulate", "frusta")
+#: ``--points`` of ``tsplus train`` -> ``load_scene``'s ``points``: the initial points
+TRAIN_POINTS = {"auto": "most", "sfm": "auto", "triangulate": "triangulate", "frusta": "frusta"}
+POINTS_CHOICES = tuple(TRAIN_POINTS)
 
 
 def add_points_arg(p):
-    """``--points auto|triangulate|frusta``: where ``tsplus train``'s initial points come from."""
+    """``--points auto|sfm|triangulate|frusta``: where ``tsplus train``'s initial points come from."""
     p.add_argument("--points", default="auto", choices=POINTS_CHOICES,
-                   help="initial points: auto (the scene's SfM points, else triangulated with pycolmap from the "
-                        "posed training images at full size, cached), triangulate (that even when the scene has "
-                        "SfM points), frusta (points spread in the cameras' frusta)")
+                   help="initial points: auto (the scene's SfM points or a triangulation with pycolmap from the "
+                        "posed training images at full size, cached, whichever holds more points), sfm (the SfM "
+                        "points; triangulated only when the scene has none), triangulate (always triangulated), "
+                        "frusta (points spread in the cameras' frusta). At most --config's init_points_share of "
+                        "the vertex cap are meshed")
 
 
 def is_procedural(scene_arg):
@@ -39,21 +42,22 @@ def print_scene_warnings(scene, file=None):
         print(f"warning: {w}", file=file or sys.stderr, flush=True)
 
 
-def load_cli_scene(scene_arg, downscale=1, seed=0, images=None, warn=True, points="auto"):
+def load_cli_scene(scene_arg, downscale=1, seed=0, images=None, warn=True, points="auto", progress=False):
     """The scene ``scene_arg`` names (``procedural[:size]`` or a folder), its images from the
     folder ``images`` when given, its initial ``points`` as :func:`~tsplus_wgpu.data.loader.load_scene`
-    takes them; the loader's warnings printed (``warn``) and kept on ``scene.warnings`` for the
-    run's config.json / metrics.json."""
+    takes them (``progress``: bars for its long steps); the loader's warnings printed (``warn``)
+    and kept on ``scene.warnings`` for the run's config.json / metrics.json."""
     from ..data import load_scene_arg
-    if is_procedural(scene_arg) and points != "auto":
+    if is_procedural(scene_arg) and points not in ("auto", "most"):
         raise UserError(f"--points {points}: the procedural scene has its own points; drop --points")
-    if images is None and points == "auto":
-        scene = load_scene_arg(scene_arg, downscale, seed)
-    elif is_procedural(scene_arg):
+    if is_procedural(scene_arg) and images is not None:
         raise UserError(f"--images {images}: the procedural scene has no image folder; drop --images")
+    if is_procedural(scene_arg) or (images is None and points == "auto" and not progress):
+        scene = load_scene_arg(scene_arg, downscale, seed)
     else:
         from ..data.loader import load_scene
-        scene = load_scene(scene_arg, images=images, downscale=downscale, seed=seed, points=points)
+        scene = load_scene(scene_arg, images=images, downscale=downscale, seed=seed, points=points,
+                           progress=progress)
     if warn:
         print_scene_warnings(scene)
     return scene

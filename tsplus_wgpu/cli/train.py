@@ -231,7 +231,9 @@ def _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded=None):
         carve = (f"{info.num_carved_faces:,} carved as free space by the training views' lines of sight"
                  if cfg.carve and scene.point_tracks is not None else
                  "none carved (" + ("--carve off" if not cfg.carve else "the scene has no SfM tracks") + ")")
-        print(f"initial mesh: {info.num_unique:,} points; Delaunay faces: {carve}, {info.num_long_faces:,} "
+        bounded = (f" (of {info.num_input + info.num_bounded:,}: at most {cfg.init_points_share:g} x the vertex cap)"
+                   if info.num_bounded else "")
+        print(f"initial mesh: {info.num_unique:,} points{bounded}; Delaunay faces: {carve}, {info.num_long_faces:,} "
               f"longer than {cfg.init_max_edge:g} spacings dropped")
     if cfg.topology:
         print(f"vertex cap: {trainer.topology.cap.vertices:,} ({trainer.topology.cap.why})")
@@ -306,7 +308,7 @@ def run(args):
     from ..gpu.context import GpuContext
     from ..train.callbacks import RateEstimate
     from ..train.loop import Interrupted
-    from .scenes import load_cli_scene
+    from .scenes import TRAIN_POINTS, load_cli_scene
     resolve_settings(args)                       # every flag and the --config file checked before any work
     out, ckpt, loaded = _output_folder(args)
     t0 = time.perf_counter()
@@ -318,7 +320,7 @@ def run(args):
         args.iterations = plan.iterations
     settings = resolve_settings(args)
     scene = load_cli_scene(args.scene, args.downscale, args.seed, images=args.images,   # prints its warnings
-                           points=args.points)
+                           points=TRAIN_POINTS[args.points], progress=not args.no_progress)
     if plan.iterations_from == "CPU adapter":     # what fits a quarter of an hour, now that the scene is known
         settings["iterations"] = cpu_iterations(TrainConfig(**settings), scene)
     cfg = config_for_scene(args, settings, scene)

@@ -123,7 +123,9 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
         frames: optional subset (indices in the format's order, or image names) to load;
             the split is computed on the full scene first, so held-out images stay held out.
         points: ``"auto"`` (SfM points, else triangulation from known poses, else frusta),
-            ``"triangulate"``, ``"frusta"`` or ``"none"``.
+            ``"most"`` (as ``"auto"``, but a scene with SfM points is also triangulated from the
+            known poses, and whichever set holds more points is used), ``"triangulate"``,
+            ``"frusta"`` or ``"none"``.
         on_bad_image: ``"skip"`` (warn and skip missing/unreadable images) or ``"error"``.
         cache_dir: where SfM / triangulation results are cached (default ``$TSPLUS_CACHE``, else
             ``$XDG_CACHE_HOME/tsplus_wgpu``, default ``~/.cache/tsplus_wgpu``; never the scene folder).
@@ -181,6 +183,17 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
     else:
         from .colmap import colmap_tracks  # noqa: PLC0415
         tracks = colmap_tracks(rec, names)
+        if points == "most":
+            full = _full_size_specs(fmt, root, images, [chosen[k] for k in kept], image_dir)
+            got = _triangulated(full, bg, train_idx, cache_dir, progress, warnings, "the SfM points kept")
+            if got is not None and len(got[0]) > len(pts):
+                warnings.append(f"initial points: the {len(got[0]):,} triangulated ones, more than the "
+                                f"{len(pts):,} SfM points")
+                pts, cols, tracks = got
+                source = "triangulated"
+            elif got is not None:
+                warnings.append(f"initial points: the {len(pts):,} SfM points, more than the {len(got[0]):,} "
+                                "triangulated ones")
     pts, cols, tracks = _subsample(pts, cols, tracks, max_points, seed)
     return Scene(format=fmt, cameras=cameras, images=imgs, image_names=names, points=pts, point_colors=cols,
                  point_tracks=tracks, points_source=source, train_indices=train_idx, test_indices=test_idx,
@@ -199,8 +212,8 @@ def _subsample(pts, cols, tracks, max_points, seed):
 
 def _check_options(points, on_bad_image, downscale):
     """Check :func:`load_scene`'s options; returns ``downscale`` as a float."""
-    if points not in ("auto", "triangulate", "frusta", "none"):
-        raise SceneError(f"points {points!r}: expected 'auto', 'triangulate', 'frusta' or 'none'")
+    if points not in ("auto", "most", "triangulate", "frusta", "none"):
+        raise SceneError(f"points {points!r}: expected 'auto', 'most', 'triangulate', 'frusta' or 'none'")
     if on_bad_image not in ("skip", "error"):
         raise SceneError(f"on_bad_image {on_bad_image!r}: expected 'skip' or 'error'")
     try:
@@ -312,32 +325,47 @@ def _triangulation_key(specs, background) -> str:
 def _initial_points(points, cameras, imgs, specs, background, train_idx, bounds, cache_dir, progress, seed,
                     warnings):
     """Initial points without SfM ones (or when asked): triangulated with pycolmap from the
-    posed training images at their full size (cached, so every downscale reuses them), else
-    made from the camera frusta. ``specs`` are the loaded frames at full size.
+    posed training images at their full size (:func:`_triangulated`), else made from the camera
+    frusta. ``specs`` are the loaded frames at full size.
     Returns ``(points, colours, source, track table or None)`` (:mod:`.tracks`; view ids index
     ``cameras``; None for frusta points)."""
-    from .scene import full_size_frame  # noqa: PLC0415
-    from .sfm import cache_root, frusta_points, triangulate_frames  # noqa: PLC0415
-    use = train_idx if len(train_idx) >= 2 else list(range(len(cameras)))
-    if points != "frusta" and len(use) >= 2:
-        croot, note = cache_root(None, cache_dir)
-        if note:
-            warnings.append(note)
-        sub = [specs[i] for i in use]
-        try:
-            pts, cols, info = triangulate_frames(lambda i: full_size_frame(sub[i], background), [f.name for f in sub],
-                                                 _triangulation_key(sub, background), croot, progress=progress)
-            warnings.append(f"initial points triangulated with pycolmap from {len(use)} posed images at full size "
-                            f"(mean reprojection error {info['mean_reprojection_error']:.2f} px"
-                            + (", cached" if "cached" in info else "") + ")")
-            tracks = info.get("tracks")
-            return pts, cols, "triangulated", None if tracks is None else remap(tracks, np.asarray(use, np.int64))
-        except RuntimeError as exc:
-            warnings.append(f"{exc}: initial points made from the camera frusta instead")
+    from .sfm import frusta_points  # noqa: PLC0415
+    if points != "frusta":
+        got = _triangulated(specs, background, train_idx, cache_dir, progress, warnings)
+        if got is not None:
+            return got[0], got[1], "triangulated", got[2]
     pts, cols = frusta_points(cameras, imgs, bounds=bounds, seed=seed)
     if points == "frusta":
         warnings.append("initial points made from the camera frusta (as asked)")
     return pts, cols, "frusta", None
+
+
+def _triangulated(specs, background, train_idx, cache_dir, progress, warnings,
+                  fallback="initial points made from the camera frusta instead"):
+    """``(points, colours, track table or None)`` triangulated with pycolmap from the posed
+    training images (all images when fewer than 2 are for training) at their full size, cached
+    (so every downscale reuses them); None, with the warning ``"<why>: <fallback>"``, when that
+    fails or there are not 2 images. ``specs`` are the loaded frames at full size; the track table's view ids index them."""
+    from .scene import full_size_frame  # noqa: PLC0415
+    from .sfm import cache_root, triangulate_frames  # noqa: PLC0415
+    use = train_idx if len(train_idx) >= 2 else list(range(len(specs)))
+    if len(use) < 2:
+        return None
+    croot, note = cache_root(None, cache_dir)
+    if note:
+        warnings.append(note)
+    sub = [specs[i] for i in use]
+    try:
+        pts, cols, info = triangulate_frames(lambda i: full_size_frame(sub[i], background), [f.name for f in sub],
+                                             _triangulation_key(sub, background), croot, progress=progress)
+    except RuntimeError as exc:
+        warnings.append(f"{exc}: {fallback}")
+        return None
+    warnings.append(f"initial points triangulated with pycolmap from {len(use)} posed images at full size "
+                    f"(mean reprojection error {info['mean_reprojection_error']:.2f} px"
+                    + (", cached" if "cached" in info else "") + ")")
+    tracks = info.get("tracks")
+    return pts, cols, None if tracks is None else remap(tracks, np.asarray(use, np.int64))
 
 
 def frame_sizes(path, images=None) -> list:

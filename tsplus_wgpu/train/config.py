@@ -167,6 +167,11 @@ class TrainConfig:
              "pixel of its ~1.6k x 1k training images (its scenes end near 2M); without a budget, lund at "
              "--downscale 4 (42k pixels per image) grew past 15 vertices per pixel by iteration 1100 and hit the "
              "storage-binding limit", flag="--vertex-budget", check=real(0.0), type=float, metavar="F")
+    init_points_share: float = option(
+        0.25, "the initial mesh is built from at most this share of the densification cap in points (those seen "
+              "by 3 or more views first, a fixed random choice within; 0: all), so that a scene whose photos "
+              "triangulate into many points (the cup: 51,071 for a cap of 60,000) starts with room to densify "
+              "and a first iteration that is not 10x slower", check=real(0.0, 1.0))
     densify_stop_rel: float = option(
         0.01, "stop densifying when the mean training L1 of the last 3 topology windows improved by less than this "
               "fraction on the 3 before (0: never)", flag="--densify-stop", check=real(0.0, 1.0), type=float,

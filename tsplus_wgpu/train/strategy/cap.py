@@ -111,4 +111,13 @@ def vertex_cap(config, cameras, limits=None):
     return VertexCap(vertices, bound, detail, why, binding // per_triangle, inputs)
 
 
-__all__ = ["VertexCap", "vertex_cap", "triangle_bytes"]
+def initial_points_bound(config, cameras):
+    """The most initial points a run meshes (None: all): ``config.init_points_share`` of the
+    vertex cap (:func:`vertex_cap` without a device bound; ``cameras`` as there)."""
+    share = float(getattr(config, "init_points_share", 0.0))
+    if share <= 0:
+        return None
+    return max(3, math.ceil(share * vertex_cap(config, cameras).vertices))
+
+
+__all__ = ["VertexCap", "vertex_cap", "triangle_bytes", "initial_points_bound"]
