@@ -188,9 +188,6 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
         prog.stage("incremental mapping")
         opts = pycolmap.IncrementalPipelineOptions()
         opts.num_threads = -1
-        opts.triangulation.min_angle = TRIANGULATION_MIN_ANGLE
-        opts.mapper.filter_min_tri_angle = TRIANGULATION_MIN_ANGLE
-        opts.triangulation.ignore_two_view_tracks = False
         opts.random_seed = 0
         opts.multiple_models = False
         count = {"n": 0}
