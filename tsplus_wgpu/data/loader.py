@@ -345,7 +345,8 @@ def _triangulated(specs, background, train_idx, cache_dir, progress, warnings,
     """``(points, colours, track table or None)`` triangulated with pycolmap from the posed
     training images (all images when fewer than 2 are for training) at their full size, cached
     (so every downscale reuses them); None, with the warning ``"<why>: <fallback>"``, when that
-    fails or there are not 2 images. ``specs`` are the loaded frames at full size; the track table's view ids index them."""
+    fails or there are not 2 images. ``specs`` are the loaded frames at full size; the track
+    table's view ids index them."""
     from .scene import full_size_frame  # noqa: PLC0415
     from .sfm import cache_root, triangulate_frames  # noqa: PLC0415
     use = train_idx if len(train_idx) >= 2 else list(range(len(specs)))

@@ -1,9 +1,10 @@
 """The model a run starts from (:class:`~.trainer.Trainer` without ``model``).
 
-1. The scene's points (at most :func:`bounded_points` of them) meshed (:func:`~.init.init_from_points`): every face of their 3D
-   Delaunay tetrahedralisation, less the faces that a training camera's line of sight to a
-   point it observed crosses (``config.carve``, :mod:`.carve`; needs the scene's SfM tracks,
-   ``Scene.point_tracks``) and the faces longer than ``config.init_max_edge`` local spacings.
+1. The scene's points (at most :func:`bounded_points` of them) meshed
+   (:func:`~.init.init_from_points`): every face of their 3D Delaunay tetrahedralisation, less
+   the faces that a training camera's line of sight to a point it observed crosses
+   (``config.carve``, :mod:`.carve`; needs the scene's SfM tracks, ``Scene.point_tracks``) and
+   the faces longer than ``config.init_max_edge`` local spacings.
 2. The background shell (``config.shell``, :mod:`.shell`), a triangle group of its own.
 
 Tracks count only from training views: a held-out view must not shape the model.
