@@ -98,7 +98,9 @@ def test_folder_scene_is_stored_absolute_and_changed_images_are_refused(tmp_path
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import fuzz_data as fd
     fd.make_colmap(tmp_path / "scene", fd.procedural_views(), binary=False)
-    args = ["train", "scene", "--preset", "quick", "--iterations", "3", "--no-progress", "--out", "run"]
+    # --points sfm: the synthetic images triangulate into no points, which `auto` would warn about
+    args = ["train", "scene", "--preset", "quick", "--iterations", "3", "--no-progress", "--points", "sfm", "--out",
+            "run"]
     r = _cli(*args, cwd=tmp_path)           # a relative SCENE
     assert r.returncode == 0, r.stderr
     cfg = json.loads((tmp_path / "run" / "config.json").read_text())

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
@@ -123,9 +124,8 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
         frames: optional subset (indices in the format's order, or image names) to load;
             the split is computed on the full scene first, so held-out images stay held out.
         points: ``"auto"`` (SfM points, else triangulation from known poses, else frusta),
-            ``"most"`` (as ``"auto"``, but a scene with SfM points is also triangulated from the
-            known poses, and whichever set holds more points is used), ``"triangulate"``,
-            ``"frusta"`` or ``"none"``.
+            ``"most"`` (the SfM points or the triangulated ones, whichever are more),
+            ``"triangulate"``, ``"frusta"`` or ``"none"``.
         on_bad_image: ``"skip"`` (warn and skip missing/unreadable images) or ``"error"``.
         cache_dir: where SfM / triangulation results are cached (default ``$TSPLUS_CACHE``, else
             ``$XDG_CACHE_HOME/tsplus_wgpu``, default ``~/.cache/tsplus_wgpu``; never the scene folder).
@@ -168,37 +168,40 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
     train_idx = [j for j, o in enumerate(orig) if o in train_set]
     test_idx = [j for j, o in enumerate(orig) if o in test_set]
     names = [chosen[k].name for k in kept]
-    models = {}
-    for k in kept:
-        models[chosen[k].model] = models.get(chosen[k].model, 0) + 1
-
-    source = "sfm" if pts is not None else "none"
+    models = dict(Counter(chosen[k].model for k in kept))
     if points == "none":
-        pts = cols = tracks = None
-        source = "none"
+        pts, cols, tracks, source = None, None, None, "none"
     elif pts is None or points in ("triangulate", "frusta"):
         full = _full_size_specs(fmt, root, images, [chosen[k] for k in kept], image_dir)
         pts, cols, source, tracks = _initial_points(points, cameras, imgs, full, bg, train_idx, bounds, cache_dir,
                                                     progress, seed, warnings)
     else:
         from .colmap import colmap_tracks  # noqa: PLC0415
-        tracks = colmap_tracks(rec, names)
+        tracks, source = colmap_tracks(rec, names), "sfm"
         if points == "most":
             full = _full_size_specs(fmt, root, images, [chosen[k] for k in kept], image_dir)
-            got = _triangulated(full, bg, train_idx, cache_dir, progress, warnings, "the SfM points kept")
-            if got is not None and len(got[0]) > len(pts):
-                warnings.append(f"initial points: the {len(got[0]):,} triangulated ones, more than the "
-                                f"{len(pts):,} SfM points")
-                pts, cols, tracks = got
-                source = "triangulated"
-            elif got is not None:
-                warnings.append(f"initial points: the {len(pts):,} SfM points, more than the {len(got[0]):,} "
-                                "triangulated ones")
+            pts, cols, tracks, source = _most_points((pts, cols, tracks), full, bg, train_idx, cache_dir, progress,
+                                                     warnings)
     pts, cols, tracks = _subsample(pts, cols, tracks, max_points, seed)
     return Scene(format=fmt, cameras=cameras, images=imgs, image_names=names, points=pts, point_colors=cols,
                  point_tracks=tracks, points_source=source, train_indices=train_idx, test_indices=test_idx,
                  warnings=warnings, root=str(root), background=bg, skipped=skipped, camera_models=models,
                  split_rule=rule, image_dir=image_dir and str(image_dir), image_dir_reason=why, downscale=total)
+
+
+def _most_points(sfm, specs, background, train_idx, cache_dir, progress, warnings):
+    """``points="most"``: ``(points, colours, tracks, source)`` of the SfM points ``sfm``
+    (``(points, colours, tracks)``) or of :func:`_triangulated`'s, whichever are more; a
+    warning says which."""
+    got = _triangulated(specs, background, train_idx, cache_dir, progress, warnings, "the SfM points kept")
+    if got is None:
+        return (*sfm, "sfm")
+    n_sfm, n_tri = len(sfm[0]), len(got[0])
+    if n_tri > n_sfm:
+        warnings.append(f"initial points: the {n_tri:,} triangulated ones, more than the {n_sfm:,} SfM points")
+        return (*got, "triangulated")
+    warnings.append(f"initial points: the {n_sfm:,} SfM points, more than the {n_tri:,} triangulated ones")
+    return (*sfm, "sfm")
 
 
 def _subsample(pts, cols, tracks, max_points, seed):
