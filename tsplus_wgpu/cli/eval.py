@@ -47,9 +47,11 @@ def add_parser(sub):
                    help="colour interpolation: perspective-correct as engines (default) or linear in screen space "
                         "as the splatting model")
     p.add_argument("--poisson-depth", type=int, default=9, help="Poisson octree depth (default 9)")
-    p.add_argument("--points", default="auto", choices=POINTS_CHOICES,
+    p.add_argument("--points", default="sfm", choices=POINTS_CHOICES,
                    help="with --baseline: the points the Poisson mesh is built from, as `tsplus train --points` "
-                        "takes them (default auto: the same points a training run starts from)")
+                        "takes them (default sfm: the scene's SfM points, triangulated when it has none; auto: the "
+                        "points a training run starts from, which on lund give a weaker Poisson mesh, 8.56 against "
+                        "11.04 dB)")
     p.add_argument("--normals", default=None, metavar="DIR",
                    help="also report the mesh's normal error against these normal maps (the files and convention of "
                         "`tsplus train --normals`) on the evaluated views that have one: mean 1 - <N, P> and mean "
