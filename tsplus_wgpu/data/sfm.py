@@ -28,11 +28,11 @@ from .tracks import check as check_tracks
 from .tracks import of_pycolmap_points as tracks_of_points
 
 #: the smallest angle (degrees) between two rays of a triangulated point with known poses
-#: (COLMAP's default is 1.5), and two-view tracks are kept (COLMAP drops them by default): the
+#: (COLMAP's default is 1.5), and two-view tracks are triangulated (COLMAP skips them by default): the
 #: poses are known, so a point seen in only two training views is still placed where they say,
 #: and such points are what covers the surfaces few views share. Lund's 25 training views give
-#: 4,825 points this way against 1,452 with the defaults (SfM: 1,549), 3,508 of them two-view;
-#: measured in docs/measurements.md ("Denser initial points").
+#: 4,804 points this way against 1,452 with the defaults (SfM: 1,549), 3,485 of them two-view;
+#: measured in docs/measurements.md ("Real captures: denser initial points").
 TRIANGULATION_MIN_ANGLE = 1.0
 
 
