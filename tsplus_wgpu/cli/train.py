@@ -271,7 +271,8 @@ def _finish(trainer, scene, out, ckpt, psnr0):
     fin = trainer.final_info
     colours = f"fitted to {fin['color_fit']['views']} training views" if fin["color_fit"] else "from SH DC"
     print(f"exported mesh: {len(tri):,} triangles, {fin['filled_triangles']:,} of them a backdrop filling holes of "
-          f"the training views; {fin['shards']:,} shards removed; vertex colours {colours}")
+          f"the training views; {fin['shards']:,} shards removed ({fin.get('floaters', 0):,} of them on the "
+          f"cameras' path); vertex colours {colours}")
     if fin.get("detail") is not None:
         print(detail_line(fin["detail"]))
     trainer.save_checkpoint(ckpt)
@@ -290,6 +291,7 @@ def _finish(trainer, scene, out, ckpt, psnr0):
                    initial_model_psnr=psnr0, mesh_vertices=int(len(pos)), mesh_triangles=int(len(tri)),
                    model_vertices=trainer.n, model_triangles=trainer.m, train_seconds=trainer.elapsed,
                    iterations_per_s=trainer.iteration / max(trainer.elapsed, 1e-9),
+                   shards_removed=int(fin.get("shards", 0)), path_floaters_removed=int(fin.get("floaters", 0)),
                    color_detail=fin.get("detail"),
                    scene_warnings=[str(w) for w in getattr(scene, "warnings", None) or ()])
     write_json(out / "metrics.json", metrics)

@@ -211,8 +211,10 @@ class TrainConfig:
         check=boolean(), choices=["on", "off"])
     remove_shards: bool = option(
         True, "at the end, remove the shards of the exported mesh (surface triangles larger than 0.15 rad from the "
-              "nearest training camera whose pixels' error is over twice the mean), then fill and colour again "
-              "(tsplus_wgpu/train/final.py; +0.2 to +0.9 dB held-out on the four shared real captures)",
+              "nearest training camera whose pixels' error is over twice the mean, and those within half the median "
+              "camera spacing of the path the training cameras moved along), then fill and colour again "
+              "(tsplus_wgpu/train/final.py, floaters.py; +0.2 to +0.9 dB held-out on the four shared real captures, "
+              "the path another +0.5 to +1.3 dB on lund)",
         flag="--remove-shards", check=boolean(), choices=["on", "off"])
     color_detail: bool = option(
         True, "at the end, subdivide the exported mesh where its triangles are large on screen (over 16, 8, 4 or 2 "

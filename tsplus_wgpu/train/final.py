@@ -22,6 +22,7 @@ import numpy as np
 from ..kernels.loss import supersampled_camera
 from ..io.export import dc_colors
 from .schedules import FINAL_PRUNE_WEIGHT
+from .floaters import path_floaters
 from .detail import VALIDATION_SUPERSAMPLE, angular_size, colour_detail, with_midpoints
 from .shell import SURFACE, background_shell, beyond_views
 from .strategy.cap import vertex_cap
@@ -39,10 +40,13 @@ def final_mesh(trainer):
     ``trainer``'s model (module docstring)."""
     t, cfg = trainer, trainer.config
     keep = cleanup_mask(t)
-    t.final_info = dict(filled_triangles=0, color_fit=None, shards=0)
+    t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0)
     mesh = _exported(t, keep)
     if cfg.remove_shards and len(mesh[2]):
-        shards = find_shards(t, *mesh)
+        floaters = keep & path_floaters(t.positions_frame(), t.triangles_host, t.groups,
+                                        [t.scene.cameras[v] for v in t.train_views], SURFACE)
+        shards = find_shards(t, *mesh) | floaters
+        t.final_info["floaters"] = int(floaters.sum())
         if shards.any():
             t.final_info["shards"] = int(shards.sum())
             mesh = _exported(t, keep & ~shards)
