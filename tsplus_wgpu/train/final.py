@@ -6,7 +6,8 @@ triangles are the hidden layers other viewpoints see; never the shell's triangle
 training view's image, the backdrop of other viewpoints), then the unused vertices; sigma and
 opacity are dropped. Holes a training view still shows are filled with a fresh background
 shell's triangles (``config.fill_holes``, :func:`backdrop_fill`); shards, large triangles that
-draw the training views badly, are removed and the fill and the colours made again
+draw the training views badly, and the floaters on the training cameras' path
+(:func:`~.floaters.path_floaters`) are removed and the fill and the colours made again
 (``config.remove_shards``, :func:`find_shards`); the mesh is subdivided where the held-back
 training views say finer colours draw them better (``config.color_detail``, :mod:`.detail`). The vertex colours are
 either the SH DC term (``config.mesh_colors = 'dc'``) or fitted to the training photos through

@@ -6,8 +6,8 @@ path is empty. A trained triangle there is a floater: from the training cameras 
 it is small and shows, in each of their photos, a patch of the scene far behind it, so the
 photo loss keeps it; from a viewpoint between them it fills the image. Lund (a street walked
 forwards, training cameras about 0.35 world units apart) ends its default run with such
-triangles 0.2-0.3 units in front of held-out cameras, drawn over up to 70 % of a held-out image
-and never over more than 4 % of a training one.
+triangles 0.2-0.6 units in front of held-out cameras: one covers 79 % of held-out view 16 and
+at most 23 % of any training view, most of the others under 5 %.
 
 The path is the graph that links every training camera to its :data:`PATH_NEIGHBOURS` nearest
 (no link longer than :data:`PATH_MAX_LINK` x the median spacing, so a misregistered camera far
