@@ -30,7 +30,7 @@ def test_every_flag_comes_from_a_field_and_shows_its_default():
     names = {f.name: f for f in fields(TrainConfig)}
     opts = cli_options()
     assert {o[0] for o in opts} == {"iterations", "indoor", "seed", "log_every", "checkpoint_every", "topology",
-                                    "max_vertices", "vertex_budget", "densify_stop_rel", "shell", "init_max_edge", "carve", "sh_degree", "final_prune",
+                                    "max_vertices", "vertex_budget", "densify_stop_rel", "shell", "init_max_edge", "carve", "clear_path", "sh_degree", "final_prune",
                                     "mesh_colors", "fill_holes", "remove_shards", "color_detail", "normals"}
     for name, flag, text, _ in opts:
         f = names[name]

@@ -69,14 +69,10 @@ def test_the_end_of_training_removes_a_floater_on_the_path(renderer):
     from tsplus_wgpu.types import TriangleModel
     tiny = load_procedural("tiny")
     cfg = dict(iterations=2, quick=True, topology=False, log_every=0, mesh_colors="dc", color_detail=False)
-    model, groups, _ = initial_model(tiny, TrainConfig(**cfg))
+    model, groups, _ = initial_model(tiny, TrainConfig(**cfg))          # --clear-path on: nothing on the path
     centres = np.array([tiny.cameras[v].center for v in tiny.train_indices])
     links, spacing = camera_path(centres)
-    # the initial Delaunay mesh spans the room, the cameras' path too: keep what is away from it
-    away = ~near_path(model.positions, model.triangles, centres)
-    assert 0 < away.sum() < model.num_triangles
-    model = TriangleModel(model.positions, model.triangles[away], model.sh, model.opacity)
-    groups = groups[away]
+    assert not near_path(model.positions, model.triangles, centres).any()
     a, b = centres[links[0, 0]], centres[links[0, 1]]
     mid = 0.5 * (a + b)
     u = (b - a) / np.linalg.norm(b - a)
@@ -97,3 +93,20 @@ def test_the_end_of_training_removes_a_floater_on_the_path(renderer):
         gap = np.min(np.linalg.norm(pos[:, None, :] - floater[None], axis=2), axis=0).max()
         assert (gap < 0.05 * spacing) == (not on), (on, gap)
         assert t.final_info["floaters"] == (1 if on else 0)
+
+
+def test_the_initial_mesh_leaves_the_path_clear():
+    """The tiny room's Delaunay mesh spans the space the cameras moved through: --clear-path on
+    (default) drops exactly those faces, off keeps them; the count is reported either way."""
+    from tsplus_wgpu.data.procedural import load_procedural
+    from tsplus_wgpu.train.config import TrainConfig
+    from tsplus_wgpu.train.initial import initial_model
+    tiny = load_procedural("tiny")
+    centres = [tiny.cameras[v].center for v in tiny.train_indices]
+    base = dict(iterations=2, quick=True, shell=False)
+    off, _, info_off = initial_model(tiny, TrainConfig(**base, clear_path=False))
+    on, _, info_on = initial_model(tiny, TrainConfig(**base))
+    hit = near_path(off.positions, off.triangles, centres)
+    assert info_off.num_path_faces == info_on.num_path_faces == int(hit.sum()) > 0
+    np.testing.assert_array_equal(on.triangles, off.triangles[~hit])
+    np.testing.assert_array_equal(on.positions, off.positions)

@@ -235,8 +235,10 @@ def test_backdrop_fills_every_hole_of_the_training_views(renderer):
     near = tiny.frame().near_world()
     cover, meshes = {}, {}
     for fill in (False, True):
+        # no shard removal: its error test counts the fill's pixels, so the two meshes could differ by a shard
         t = Trainer(tiny, TrainConfig(iterations=3, quick=True, topology=False, final_prune=True, fill_holes=fill,
-                                      shell=False, mesh_colors="dc", log_every=0), renderer=renderer)
+                                      shell=False, mesh_colors="dc", remove_shards=False, log_every=0),
+                    renderer=renderer)
         t.train(progress=False, checkpoint_at_end=False)
         pos, tri, col = meshes[fill] = t.final_mesh()
         cover[fill] = [mr.render((pos, tri, col), tiny.cameras[v], near=near).coverage.mean()

@@ -33,8 +33,8 @@ from .plan import (CPU_MAX_PIXELS, Plan, cpu_downscale, cpu_iterations, cpu_late
                    plan_run)
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
-_FROM_FLAG = {**{k: (lambda v: v == "on") for k in ("topology", "shell", "carve", "final_prune", "fill_holes",
-                                                    "remove_shards", "color_detail")},
+_FROM_FLAG = {**{k: (lambda v: v == "on") for k in ("topology", "shell", "carve", "clear_path", "final_prune",
+                                                    "fill_holes", "remove_shards", "color_detail")},
               "normals": lambda v: str(Path(v).resolve())}
 
 def add_parser(sub):
@@ -234,7 +234,8 @@ def _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded=None):
         bounded = (f" (of {info.num_input + info.num_bounded:,}: at most {cfg.init_points_share:g} x the vertex cap)"
                    if info.num_bounded else "")
         print(f"initial mesh: {info.num_unique:,} points{bounded}; Delaunay faces: {carve}, {info.num_long_faces:,} "
-              f"longer than {cfg.init_max_edge:g} spacings dropped")
+              f"longer than {cfg.init_max_edge:g} spacings dropped, {info.num_path_faces:,} on the cameras' path "
+              + ("dropped" if cfg.clear_path else "kept (--clear-path off)"))
     if cfg.topology:
         print(f"vertex cap: {trainer.topology.cap.vertices:,} ({trainer.topology.cap.why})")
     if normal_maps is not None:

@@ -58,6 +58,7 @@ class InitInfo:
     num_long_faces: int = 0    # dropped by ``max_edge_ratio``
     num_carved_faces: int = 0  # crossed by camera-to-point rays (``visibility``)
     num_bounded: int = 0       # scene points left out before meshing (train.initial.bounded_points)
+    num_path_faces: int = 0    # on the training cameras' path (train.initial, train.floaters)
 
 
 def _check(name, arr, cols):

@@ -4,7 +4,10 @@
    (:func:`~.init.init_from_points`): every face of their 3D Delaunay tetrahedralisation, less
    the faces that a training camera's line of sight to a point it observed crosses
    (``config.carve``, :mod:`.carve`; needs the scene's SfM tracks, ``Scene.point_tracks``) and
-   the faces longer than ``config.init_max_edge`` local spacings.
+   the faces longer than ``config.init_max_edge`` local spacings, and the faces on the path the
+   training cameras moved along (``config.clear_path``, :func:`~.floaters.near_path`: the
+   photographer walked through that space; lund's initial mesh has 11,384 such faces of 44,898,
+   the cup 1, office and fox none).
 2. The background shell (``config.shell``, :mod:`.shell`), a triangle group of its own.
 
 Tracks count only from training views: a held-out view must not shape the model.
@@ -15,6 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..data.tracks import rays, subset
+from ..types import TriangleModel
+from .floaters import near_path
 from .init import init_from_points
 from .shell import background_shell, with_shell
 from .strategy.cap import initial_points_bound
@@ -68,6 +73,10 @@ def initial_model(scene, config):
     model, info = init_from_points(pts, cols, sh_degree=config.sh_degree,
                                    max_edge_ratio=config.init_max_edge or None, visibility=vis, return_info=True)
     info.num_bounded = dropped
+    on_path = near_path(model.positions, model.triangles, [scene.cameras[i].center for i in scene.train_indices])
+    info.num_path_faces = int(on_path.sum())
+    if config.clear_path and on_path.any() and not on_path.all():      # never an empty mesh
+        model = TriangleModel(model.positions, model.triangles[~on_path], model.sh, model.opacity)
     shell = None
     if config.shell:
         views = list(scene.train_indices)
