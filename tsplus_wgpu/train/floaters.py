@@ -33,6 +33,8 @@ PATH_RADIUS = 0.5
 GRID_STEP = 0.25
 #: finest grid: this many steps along an edge (the spacing above holds up to 64 radii an edge)
 MAX_STEPS = 256
+#: grid points measured at once
+MAX_POINTS = 1 << 20
 
 
 def camera_path(centres):
@@ -97,11 +99,14 @@ def near_path(positions, triangles, centres, radius=None):
     edge = np.linalg.norm(v[cand] - np.roll(v[cand], 1, axis=1), axis=2).max(axis=1)
     steps = np.clip(np.ceil(edge / (GRID_STEP * r)), 1, MAX_STEPS).astype(np.int64)
     for n in np.unique(steps):
-        idx = cand[steps == n]
         w = _grid(int(n))                                             # [K, 3]
-        pts = np.einsum("kc,fcd->fkd", w, v[idx]).reshape(-1, 3)
-        d = path_distance(pts, centres, links).reshape(len(idx), len(w))
-        out[idx] = d.min(axis=1) < r
+        group = cand[steps == n]
+        per = max(1, MAX_POINTS // len(w))                            # bounded memory for huge triangles
+        for s in range(0, len(group), per):
+            idx = group[s:s + per]
+            pts = np.einsum("kc,fcd->fkd", w, v[idx]).reshape(-1, 3)
+            d = path_distance(pts, centres, links).reshape(len(idx), len(w))
+            out[idx] = d.min(axis=1) < r
     return out
 
 
