@@ -45,7 +45,7 @@ def final_mesh(trainer):
     mesh = _exported(t, keep)
     if cfg.remove_shards and len(mesh[2]):
         floaters = keep & path_floaters(t.positions_frame(), t.triangles_host, t.groups,
-                                        [t.scene.cameras[v] for v in t.train_views], SURFACE)
+                                        [t.scene.cameras[v] for v in t.train_views])
         shards = find_shards(t, *mesh) | floaters
         t.final_info["floaters"] = int(floaters.sum())
         if shards.any():

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .shell import SURFACE
+
 #: links of the path graph: each training camera to this many nearest others
 PATH_NEIGHBOURS = 2
 #: no link longer than this many median spacings (the median distance to the nearest camera)
@@ -110,12 +112,12 @@ def near_path(positions, triangles, centres, radius=None):
     return out
 
 
-def path_floaters(positions, triangles, groups, cameras, surface=0):
-    """``[F]`` bool: the surface triangles (``groups == surface``; the background shell is far
+def path_floaters(positions, triangles, groups, cameras):
+    """``[F]`` bool: the surface triangles (``groups`` :data:`~.shell.SURFACE`, or all when None; the shell is far
     beyond the path) near the path of ``cameras`` (the training cameras; their frame)."""
     centres = np.array([c.center for c in cameras], np.float64).reshape(-1, 3)
     tri = np.asarray(triangles, np.int64).reshape(-1, 3)
-    is_surface = np.ones(len(tri), bool) if groups is None else np.asarray(groups) == surface
+    is_surface = np.ones(len(tri), bool) if groups is None else np.asarray(groups) == SURFACE
     out = np.zeros(len(tri), bool)
     if is_surface.any():
         out[is_surface] = near_path(positions, tri[is_surface], centres)
