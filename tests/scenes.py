@@ -1,5 +1,7 @@
 """Random test scenes: overlapping, tilted sheets of triangles that share vertices."""
 
+import os
+
 import numpy as np
 from scipy.spatial import Delaunay
 
@@ -81,3 +83,10 @@ def similar_scene(scene, scale, shift):
     from tsplus_wgpu.data import WorldFrame
     sim = WorldFrame(scale, tuple(-np.asarray(shift, np.float64) / scale))
     return scene.in_frame(sim), sim
+
+
+def child_env(repo, **extra):
+    """``os.environ`` for a child ``python -m tsplus_wgpu...``: ``repo`` ahead of the caller's own
+    ``PYTHONPATH`` (which may be where wgpu and the other packages are), plus ``extra``."""
+    path = os.pathsep.join(p for p in (str(repo), os.environ.get("PYTHONPATH", "")) if p)
+    return dict(os.environ, **extra, PYTHONPATH=path)

@@ -30,6 +30,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fuzz_data as fd  # noqa: E402
 from fuzz_cases import CASES, TRAIN_FAST  # noqa: E402
+from scenes import child_env  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 ERROR_LINE = re.compile(r"^tsplus(?: [\w-]+)?: error: ")
@@ -49,9 +50,8 @@ def cli(*argv, env=None, cwd=None, timeout=CASE_TIMEOUT):
 
 
 def cli_env(cache):
-    env = dict(os.environ)
+    env = child_env(ROOT, XDG_CACHE_HOME=str(cache), TSPLUS_CACHE=str(cache), NO_COLOR="1")
     env.setdefault("XDG_RUNTIME_DIR", "/tmp/xdg")
-    env.update(XDG_CACHE_HOME=str(cache), TSPLUS_CACHE=str(cache), PYTHONPATH=str(ROOT), NO_COLOR="1")
     return env
 
 

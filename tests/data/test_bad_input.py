@@ -7,7 +7,6 @@ Table-driven: each case corrupts a fresh copy of a small scene in ``tmp_path``.
 """
 
 import json
-import os
 import re
 import shutil
 import struct
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scenes import child_env
 
 from tests.data.test_formats import write_colmap_text, write_llff, write_transforms
 from tsplus_wgpu.data import SceneError, load_procedural, load_scene
@@ -250,7 +250,7 @@ def test_truncated_points3d_bin_from_the_command_line(templates, tmp_path):
     """The CLI: exit status 2, one line, no traceback, quickly (no gigabyte allocation)."""
     root = scene_copy(templates, "colmap_bin", tmp_path / "scene")
     truncate(_bin(root, "points3D"), 20)
-    env = dict(os.environ, PYTHONPATH=str(REPO))
+    env = child_env(REPO)
     r = subprocess.run([sys.executable, "-m", "tsplus_wgpu.cli.inspect", str(root), "--quiet"],
                        capture_output=True, text=True, env=env, cwd=REPO, timeout=60)
     assert r.returncode == 2

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scenes import child_env
 
 from tsplus_wgpu.data import SceneError, load_procedural, load_scene
 from tsplus_wgpu.data.images import write_image
@@ -379,7 +380,7 @@ def test_photos_sfm_registers_too_few(tmp_path):
 
 
 def test_cli_prints_one_line_and_exits_2(tmp_path):
-    env = dict(os.environ, PYTHONPATH=str(REPO))
+    env = child_env(REPO)
     r = subprocess.run([sys.executable, "-m", "tsplus_wgpu.cli.inspect", str(tmp_path), "--quiet"],
                        capture_output=True, text=True, env=env, cwd=REPO)
     assert r.returncode == 2
@@ -388,7 +389,7 @@ def test_cli_prints_one_line_and_exits_2(tmp_path):
 
 
 def test_cli_inspect_procedural():
-    env = dict(os.environ, PYTHONPATH=str(REPO))
+    env = child_env(REPO)
     r = subprocess.run([sys.executable, "-m", "tsplus_wgpu.cli.inspect", "procedural:tiny", "--quiet"],
                        capture_output=True, text=True, env=env, cwd=REPO)
     assert r.returncode == 0, r.stderr
