@@ -8,6 +8,7 @@ import pytest
 from scenes import f32_exact, look_at_camera, random_scene
 
 from tsplus_wgpu import MeshRenderer
+from tsplus_wgpu.reference.mesh import colour_slope
 from tsplus_wgpu.reference.mesh import mesh_raster as render_reference
 from tsplus_wgpu.render.mesh_fit import barycentrics, fit_vertex_colors, triangle_ids, view_system
 
@@ -59,7 +60,10 @@ def test_barycentrics_reproduce_the_renderers_colours(mr, seed):
     b = barycentrics(model.positions, model.triangles, cam, ids[r, c], r, c)
     assert np.all(b >= 0) and np.allclose(b.sum(1), 1)
     mine = np.einsum("ki,kic->kc", b, col[model.triangles[ids[r, c]]])
-    np.testing.assert_allclose(mine, img[r, c], atol=1e-4)       # (edge pixels: sub-pixel snapping)
+    # a rasteriser may interpolate from vertices snapped to its 1/256 px grid (an NVIDIA H100 does):
+    # each moves <= 1/512 px per coordinate, so a colour moves <= its slope / 512; twice that here
+    tol = 2e-5 + colour_slope((model.positions, model.triangles, col), cam, ids)[r, c] * 2.0 ** -8
+    assert np.all(np.abs(mine - img[r, c]).max(1) <= tol)
     # the same with affine screen-space weights is visibly off: the test sees perspective
     pc = model.positions @ cam.R.T + cam.t
     uv = np.stack([cam.fx * pc[:, 0] / pc[:, 2] + cam.cx, cam.fy * pc[:, 1] / pc[:, 2] + cam.cy], 1)
@@ -70,7 +74,7 @@ def test_barycentrics_reproduce_the_renderers_colours(mr, seed):
     l1 = ((q[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (q[:, 1] - p0[:, 1]) * (p2[:, 0] - p0[:, 0])) / det
     l2 = ((p1[:, 0] - p0[:, 0]) * (q[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (q[:, 0] - p0[:, 0])) / det
     affine = np.einsum("ki,kic->kc", np.stack([1 - l1 - l2, l1, l2], 1), col[t])
-    assert np.abs(affine - img[r, c]).max() > 1e-3
+    assert np.abs(affine - img[r, c]).max() > 1e-3 and (np.abs(affine - img[r, c]).max(1) > tol).mean() > 0.5
 
 
 def test_view_system_is_the_supersampled_render(mr):

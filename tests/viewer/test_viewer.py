@@ -18,6 +18,7 @@ import pytest
 from tsplus_wgpu import Camera, MeshRenderer, Renderer, TriangleModel
 from tsplus_wgpu.cli.bench_viewer import bench_mesh
 from tsplus_wgpu.cli.view import load_viewer
+from tsplus_wgpu.reference.mesh import colour_slope, mesh_raster
 
 v = load_viewer()
 ROOT = Path(__file__).resolve().parents[2]
@@ -43,9 +44,16 @@ def _cam(w=96, h=72, eye=(0.3, -2.2, 1.4), target=(0.0, 0.0, 0.0)):
     return Camera(w, h, fx * 1.3, fy * 1.3, cx + 0.3, cy - 0.2, m)
 
 
-def _assert_same(frame_u8, ref, tol=0.5 / 255 + 1e-5):
+def _assert_same(frame_u8, ref, mesh, cam, near=0.01, tol=0.5 / 255 + 1e-5):
+    """The viewer's 8-bit frame is the mesh renderer's image to within its rounding, plus, per
+    pixel, the colour's slope times 1/256 px: the two pipelines compute clip coordinates apart, so
+    where the adapter interpolates from snapped vertices (an NVIDIA H100 does) a vertex may land one
+    grid step apart (there 0.56 / 255 at most, llvmpipe <= 0.5 / 255)."""
+    _, _, tid, _ = mesh_raster(mesh, cam, near=near)
+    allowed = tol + colour_slope(mesh, cam, tid)[..., None] * 2.0 ** -8
     d = np.abs(frame_u8.astype(np.float64) / 255.0 - np.clip(ref, 0, 1))
-    assert d.max() <= tol, f"max |viewer - MeshRenderer| = {d.max() * 255:.3f} / 255"
+    assert np.all(d <= allowed), f"max |viewer - MeshRenderer| = {d.max() * 255:.3f} / 255, " \
+                                 f"{(d > allowed).sum()} pixels past the allowance"
 
 
 def test_offscreen_frame_equals_mesh_renderer(renderer):
@@ -63,7 +71,7 @@ def test_offscreen_frame_equals_mesh_renderer(renderer):
         frame = viewer.frame()
         assert frame.shape == (cam.height, cam.width, 3)
         ref = mr.render(model, cam, background=bg).image
-        _assert_same(frame, ref)
+        _assert_same(frame, ref, model, cam)
         assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 50   # a real image, not a clear colour
 
 
@@ -77,7 +85,7 @@ def test_mesh_file_colours_are_drawn(renderer):
     viewer.canvas.set_physical_size(cam.width, cam.height)
     viewer.snap(0)
     ref = MeshRenderer(renderer.ctx).render((model.positions, model.triangles, colors), cam).image
-    _assert_same(viewer.frame(), ref)
+    _assert_same(viewer.frame(), ref, (model.positions, model.triangles, colors), cam)
 
 
 def test_live_trainer_buffers_drawn_without_copy(renderer):
@@ -97,7 +105,7 @@ def test_live_trainer_buffers_drawn_without_copy(renderer):
     cur = t.current_model()                  # world units
     dc = TriangleModel(t.frame.to_frame(cur.positions), cur.triangles, cur.sh[:, :1], np.ones(cur.num_vertices))
     ref = MeshRenderer(renderer.ctx).render(dc, t.scene.cameras[2], near=t.config.near).image
-    _assert_same(frame, ref)
+    _assert_same(frame, ref, dc, t.scene.cameras[2], near=t.config.near)
     # the hook draws between steps at the capped rate, and a closed viewer stops training when asked
     viewer.max_fps = 1000.0
     n0 = viewer.frames_drawn
