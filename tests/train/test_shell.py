@@ -12,7 +12,7 @@ from tsplus_wgpu.train.shell import (SHELL, SHELL_MIN_RADIUS, SURFACE, backgroun
                                      shell_radius, with_shell)
 from tsplus_wgpu.train.state import VertexState
 from tsplus_wgpu.train.strategy import ops
-from tsplus_wgpu.types import SH_C0, TriangleModel
+from tsplus_wgpu.types import SH_C0, Camera, TriangleModel
 
 from scenes import look_at_camera
 
@@ -294,3 +294,55 @@ def test_a_shard_across_the_views_is_removed(renderer):
         assert (gap < 0.05 * d) == (not on), (on, gap)
     assert removed[False] == 0 and removed[True] >= 1
     assert err[True] < 0.9 * err[False]
+
+
+def test_fill_hidden_covers_what_the_shell_lost_behind_the_surfaces(renderer):
+    """The trained shell's triangles hidden behind the surfaces in every training view are
+    deleted during training (here by hand, after 3 steps). A viewpoint beyond the surfaces then
+    sees holes in the backdrop. The fill of --fill-hidden (the fresh shell, FILL_BEHIND beyond
+    the trained one, seen through the trained shell's holes) covers them; the fill of the
+    training views' holes alone does not: it draws whatever a whole fresh shell draws there."""
+    from tsplus_wgpu.data.procedural import load_procedural
+    from tsplus_wgpu.render.mesh_fit import triangle_ids
+    from tsplus_wgpu.train.final import FILL_BEHIND, backdrop_fill
+    from tsplus_wgpu.train.shell import shell_radius
+    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    tiny = load_procedural("tiny")
+    t = Trainer(tiny, TrainConfig(iterations=3, quick=True, topology=False, log_every=0), renderer=renderer)
+    t.train(progress=False, checkpoint_at_end=False)
+    pos, tri, near = t.positions_frame().astype(np.float64), t.triangles_host, t.config.near
+    cams = [t.scene.cameras[v] for v in t.train_views]
+    seen = np.zeros(len(tri), bool)
+    for cam in cams:
+        ids = triangle_ids(t.mesh_renderer, pos, tri, cam, near)
+        seen[ids[ids >= 0]] = True
+    shell = np.asarray(t.groups) == SHELL
+    hidden = shell & ~seen & ops.in_views(pos, tri, cams, near)
+    assert hidden.sum() > 100
+    kept = tri[~hidden]
+    # a camera beyond the surfaces, looking at the middle of the lost part of the shell
+    centres = pos[tri[hidden]].mean(1)
+    d = centres.mean(0) / np.linalg.norm(centres.mean(0))
+    eye = 1.5 * d
+    z = d
+    x = np.cross(z, [0.0, 0.0, 1.0] if abs(d[2]) < 0.9 else [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    m = np.eye(4)
+    m[:3, :3] = np.stack([x, np.cross(z, x), z])
+    m[:3, 3] = -m[:3, :3] @ eye
+    novel = Camera(48, 36, 30.0, 30.0, 24.0, 18.0, m)
+    cover = {}
+    for name, occluders in (("holes", None), ("hidden", shell[~hidden])):
+        fpos, ftri, fcol = backdrop_fill(t, pos, kept, occluders)
+        allpos = np.concatenate([pos, fpos])
+        alltri = np.concatenate([kept, ftri + len(pos)])
+        cover[name] = float((triangle_ids(t.mesh_renderer, allpos, alltri, novel, near) >= 0).mean())
+        if name == "hidden":
+            r = np.linalg.norm(fpos, axis=1)
+            np.testing.assert_allclose(r, (1 + FILL_BEHIND) * shell_radius(t.scene.points), rtol=1e-9)
+            assert len(ftri) >= 0.5 * hidden.sum() and np.all(np.isfinite(fcol))
+    # the novel view sees past the training views' backdrop too (beyond their margin), so "all" is
+    # what a whole fresh shell draws there
+    whole = background_shell(cams, [t.scene.images[v] for v in t.train_views], t.scene.points)
+    cover["whole shell"] = float((triangle_ids(t.mesh_renderer, whole.positions, whole.triangles, novel, near) >= 0).mean())
+    assert cover["holes"] < cover["whole shell"] - 0.05 and cover["hidden"] >= cover["whole shell"], cover

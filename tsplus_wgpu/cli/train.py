@@ -34,7 +34,7 @@ from .plan import (CPU_MAX_PIXELS, Plan, cpu_downscale, cpu_iterations, cpu_late
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
 _FROM_FLAG = {**{k: (lambda v: v == "on") for k in ("topology", "shell", "carve", "clear_path", "final_prune",
-                                                    "fill_holes", "remove_shards", "color_detail")},
+                                                    "fill_holes", "fill_hidden", "remove_shards", "color_detail")},
               "normals": lambda v: str(Path(v).resolve())}
 
 def add_parser(sub):
@@ -271,8 +271,9 @@ def _finish(trainer, scene, out, ckpt, psnr0):
     _atomic_ply(out / "mesh.ply", pos, tri, col)
     fin = trainer.final_info
     colours = f"fitted to {fin['color_fit']['views']} training views" if fin["color_fit"] else "from SH DC"
+    behind = " and what the shell lost behind the surfaces" if trainer.config.fill_hidden else ""
     print(f"exported mesh: {len(tri):,} triangles, {fin['filled_triangles']:,} of them a backdrop filling holes of "
-          f"the training views; {fin['shards']:,} shards removed ({fin.get('floaters', 0):,} of them on the "
+          f"the training views{behind}; {fin['shards']:,} shards removed ({fin.get('floaters', 0):,} of them on the "
           f"cameras' path); vertex colours {colours}")
     if fin.get("detail") is not None:
         print(detail_line(fin["detail"]))

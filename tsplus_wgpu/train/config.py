@@ -214,6 +214,11 @@ class TrainConfig:
               "of the exported mesh (where nothing is drawn), so the mesh covers every training view "
               "(tsplus_wgpu/train/final.py; held-out coverage 92.7 -> 99.9 percent on office)", flag="--fill-holes",
         check=boolean(), choices=["on", "off"])
+    fill_hidden: bool = option(
+        True, "with --fill-holes on: the fill also covers what the trained background shell lost behind the surfaces "
+              "(its triangles hidden in every training view are deleted during training), lying just beyond it, so "
+              "viewpoints between and beside the training views see a backdrop past the surfaces' edges instead of "
+              "nothing (tsplus_wgpu/train/final.py)", flag="--fill-hidden", check=boolean(), choices=["on", "off"])
     remove_shards: bool = option(
         True, "at the end, remove the shards of the exported mesh (surface triangles larger than 0.15 rad from the "
               "nearest training camera whose pixels' error is over twice the mean, and those within half the median "

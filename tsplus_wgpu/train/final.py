@@ -5,7 +5,8 @@ triangles whose max blending weight is <= 0.5 (``config.final_prune``, off by de
 triangles are the hidden layers other viewpoints see; never the shell's triangles beyond every
 training view's image, the backdrop of other viewpoints), then the unused vertices; sigma and
 opacity are dropped. Holes a training view still shows are filled with a fresh background
-shell's triangles (``config.fill_holes``, :func:`backdrop_fill`); shards, large triangles that
+shell's triangles (``config.fill_holes``, :func:`backdrop_fill`), and so, just beyond the
+trained shell, is what that shell lost behind the surfaces (``config.fill_hidden``); shards, large triangles that
 draw the training views badly, and the floaters on the training cameras' path
 (:func:`~.floaters.path_floaters`) are removed and the fill and the colours made again
 (``config.remove_shards``, :func:`find_shards`); the mesh is subdivided where the held-back
@@ -25,7 +26,7 @@ from ..io.export import dc_colors
 from .schedules import FINAL_PRUNE_WEIGHT
 from .floaters import path_floaters
 from .detail import VALIDATION_SUPERSAMPLE, angular_size, colour_detail, with_midpoints
-from .shell import SURFACE, background_shell, beyond_views
+from .shell import SHELL, SURFACE, background_shell, beyond_views, shell_radius
 from .strategy.cap import vertex_cap
 
 #: samples per pixel side of the colour fit (reduced for large images, mesh_fit.MAX_SAMPLES)
@@ -34,6 +35,9 @@ FIT_SUPERSAMPLE = 2
 SHARD_ANGLE = 0.15
 #: and its pixels' mean squared error at least this many times the mean over all drawn pixels
 SHARD_RESIDUAL = 2.0
+#: with ``fill_hidden``, the fill's shell lies this fraction beyond the trained shell's radius
+#: (whose vertices moved by at most 2 % on lund's default run), so the trained shell hides it
+FILL_BEHIND = 0.05
 
 
 def final_mesh(trainer):
@@ -87,7 +91,9 @@ def _exported(t, keep):
     colors = dc_colors(model)[used]
     pos_frame, pos_world = t.positions_frame()[used].astype(np.float64), model.positions[used]
     if cfg.fill_holes:
-        add_pos, add_tri, add_col = backdrop_fill(t, pos_frame, tris)
+        shell = None if t.groups is None or not cfg.fill_hidden else np.asarray(t.groups) == SHELL
+        occluders = shell[source] if shell is not None and shell.any() else None   # (--shell off: holes only)
+        add_pos, add_tri, add_col = backdrop_fill(t, pos_frame, tris, occluders)
         if len(add_tri):
             tris = np.concatenate([tris, add_tri + len(pos_frame)])
             pos_frame = np.concatenate([pos_frame, add_pos])
@@ -131,29 +137,44 @@ def find_shards(trainer, pos_frame, pos_world, tris, colors, source):
     return out
 
 
-def backdrop_fill(trainer, positions, triangles):
+def backdrop_fill(trainer, positions, triangles, occluders=None):
     """``(positions [K, 3] (frame), triangles [F, 3] into them, colours [K, 3])``: the triangles
     of a fresh background shell (:func:`~.shell.background_shell` of the training views) that
     some training view shows through a hole of the mesh ``(positions, triangles)``, i.e. where
     the depth-tested mesh draws nothing in front of them. Whatever the training left uncovered
     in a training view (SfM found no points there, its triangles were pruned or moved away) is
-    drawn by the backdrop instead of the background colour; the colour fit then colours it."""
+    drawn by the backdrop instead of the background colour; the colour fit then colours it.
+
+    ``occluders`` (``[F]`` bool, ``config.fill_hidden``): only these triangles (the trained
+    shell's) hide the fresh shell, which lies :data:`FILL_BEHIND` beyond it. The fill then also
+    covers where the trained shell was deleted as hidden behind the surfaces in every training
+    view: what a viewpoint between or beside them sees past a surface's edge. No photo shows
+    those triangles, so they keep the fresh shell's colours (the photos' mean where they
+    project)."""
     from ..render.mesh_fit import triangle_ids
     t = trainer
     cams = [t.scene.cameras[v] for v in t.train_views]
-    shell = background_shell(cams, [t.scene.images[v] for v in t.train_views], t.scene.points)
+    radius = None if occluders is None else (1.0 + FILL_BEHIND) * shell_radius(t.scene.points)
+    shell = background_shell(cams, [t.scene.images[v] for v in t.train_views], t.scene.points, radius=radius)
     empty = np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3))
     if shell is None:
         return empty
+    triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
+    if occluders is not None:
+        triangles = triangles[np.asarray(occluders, bool)]
     m0 = len(triangles)
     allpos = np.concatenate([positions, shell.positions])
-    alltri = np.concatenate([np.asarray(triangles, np.int64).reshape(-1, 3), shell.triangles + len(positions)])
+    alltri = np.concatenate([triangles, shell.triangles + len(positions)])
     seen = np.zeros(len(shell.triangles), bool)
     for cam in cams:
         ids = triangle_ids(t.mesh_renderer, allpos, alltri, cam, t.config.near)
         seen[ids[ids >= m0] - m0] = True
     if not seen.any():
         return empty
+    if occluders is not None:      # and their neighbours: a hole's edge is seen from other places too
+        near_seen = np.zeros(shell.num_vertices, bool)
+        near_seen[shell.triangles[seen].ravel()] = True
+        seen |= near_seen[shell.triangles].any(axis=1)
     tri = shell.triangles[seen]
     used = np.zeros(shell.num_vertices, bool)
     used[tri.ravel()] = True
