@@ -10,6 +10,26 @@ from ..sh import mesh_arrays
 from ..types import Camera
 
 
+def _projected(mesh, camera: Camera):
+    """``(triangles, colours, z [N] camera depth, uv [N, 2] pixel coordinates)`` of the mesh's
+    vertices (uv of the vertices behind the camera is meaningless; callers drop them by z)."""
+    pos, tri, col = mesh_arrays(mesh, camera)
+    uv, z = camera.project(pos)
+    return tri, col, z, uv
+
+
+def _area(pa, pb, pc):
+    """Twice the signed screen area of triangles ``(pa, pb, pc)`` (``[..., 2]`` each)."""
+    return (pb[..., 0] - pa[..., 0]) * (pc[..., 1] - pa[..., 1]) - (pb[..., 1] - pa[..., 1]) * (pc[..., 0] - pa[..., 0])
+
+
+def _barycentrics(pa, pb, pc, area, px, py):
+    """Screen-space (affine) barycentric weights ``(la, lb, lc)`` of the points ``(px, py)``."""
+    la = ((pb[..., 0] - px) * (pc[..., 1] - py) - (pb[..., 1] - py) * (pc[..., 0] - px)) / area
+    lb = ((pc[..., 0] - px) * (pa[..., 1] - py) - (pc[..., 1] - py) * (pa[..., 0] - px)) / area
+    return la, lb, 1.0 - la - lb
+
+
 def mesh_raster(mesh, camera: Camera, background=(0.0, 0.0, 0.0), near=0.01, drop_near=True,
                      interpolation="perspective", edge_tol=1e-4, subpixel_bits=None, attributes_from="exact"):
     """Float64 z-buffer twin of :meth:`MeshRenderer.render` at s = 1, evaluated on pixel
@@ -26,18 +46,14 @@ def mesh_raster(mesh, camera: Camera, background=(0.0, 0.0, 0.0), near=0.01, dro
     and colour interpolated from the ``"exact"`` positions (llvmpipe, to within float32) or the
     ``"snapped"`` ones (an NVIDIA H100: 3e-7 from this, 4e-4 from exact, 1e-2 on a sliver).
     Vulkan allows both; :func:`colour_slope` bounds how far they can differ."""
-    pos, tri, col = mesh_arrays(mesh, camera)
+    tri, col, z, uv = _projected(mesh, camera)
     h, w = camera.height, camera.width
-    cam_pts = pos @ camera.R.T + camera.t
-    z = cam_pts[:, 2]
     img = np.empty((h, w, 3))
     img[:] = np.asarray(background, np.float64)
     inv_depth = np.zeros((h, w))
     second = np.zeros((h, w))
     tid = np.full((h, w), -1, np.int64)
     amb = np.zeros((h, w), bool)
-    zs = np.where(z > 0, z, 1.0)
-    uv = np.stack([camera.fx * cam_pts[:, 0] / zs + camera.cx, camera.fy * cam_pts[:, 1] / zs + camera.cy], 1)
     uv_cover = uv if subpixel_bits is None else np.round(uv * 2.0 ** subpixel_bits) / 2.0 ** subpixel_bits
     uv_attr = {"exact": uv, "snapped": uv_cover}[attributes_from]
     for t, (a, b, c) in enumerate(tri):
@@ -46,7 +62,7 @@ def mesh_raster(mesh, camera: Camera, background=(0.0, 0.0, 0.0), near=0.01, dro
                 continue
             raise ValueError("mesh_raster: near-plane clipping is not modelled; use drop_near=True")
         pa, pb, pc = uv_attr[a], uv_attr[b], uv_attr[c]
-        area = (pb[0] - pa[0]) * (pc[1] - pa[1]) - (pb[1] - pa[1]) * (pc[0] - pa[0])
+        area = _area(pa, pb, pc)
         if area == 0:
             continue
         lo = np.floor(np.minimum(np.minimum(pa, pb), pc) - 1).astype(int)
@@ -67,9 +83,7 @@ def mesh_raster(mesh, camera: Camera, background=(0.0, 0.0, 0.0), near=0.01, dro
         inside = dmin > 0
         near_edge = np.abs(dmin) <= edge_tol
         # screen barycentrics
-        la = ((pb[0] - px) * (pc[1] - py) - (pb[1] - py) * (pc[0] - px)) / area
-        lb = ((pc[0] - px) * (pa[1] - py) - (pc[1] - py) * (pa[0] - px)) / area
-        lc = 1.0 - la - lb
+        la, lb, lc = _barycentrics(pa, pb, pc, area, px, py)
         iz = la / z[a] + lb / z[b] + lc / z[c]            # 1/z is affine in screen space
         if interpolation == "linear":
             cc = la[..., None] * col[a] + lb[..., None] * col[b] + lc[..., None] * col[c]
@@ -98,22 +112,15 @@ def colour_slope(mesh, camera: Camera, tid, interpolation="perspective"):
     projected vertex by at most ``d`` px per coordinate (snapping to its sub-pixel grid) changes a
     pixel's interpolated colour by at most about ``slope * d``: the tolerance of the tests that
     compare hardware-drawn colours, which stays tight where colours are flat."""
-    pos, tri, col = mesh_arrays(mesh, camera)
-    cam_pts = pos @ camera.R.T + camera.t
-    z = cam_pts[:, 2]
-    zs = np.where(z > 0, z, 1.0)
-    uv = np.stack([camera.fx * cam_pts[:, 0] / zs + camera.cx, camera.fy * cam_pts[:, 1] / zs + camera.cy], 1)
+    tri, col, z, uv = _projected(mesh, camera)
     out = np.zeros(tid.shape)
     r, c = np.nonzero(tid >= 0)
     if len(r) == 0:
         return out
     t = tri[tid[r, c]]
     pa, pb, pc = uv[t[:, 0]], uv[t[:, 1]], uv[t[:, 2]]
-    px, py = c + 0.5, r + 0.5
-    area = (pb[:, 0] - pa[:, 0]) * (pc[:, 1] - pa[:, 1]) - (pb[:, 1] - pa[:, 1]) * (pc[:, 0] - pa[:, 0])
-    la = ((pb[:, 0] - px) * (pc[:, 1] - py) - (pb[:, 1] - py) * (pc[:, 0] - px)) / area
-    lb = ((pc[:, 0] - px) * (pa[:, 1] - py) - (pc[:, 1] - py) * (pa[:, 0] - px)) / area
-    lam = np.stack([la, lb, 1.0 - la - lb], 1)                                  # [K, 3]
+    area = _area(pa, pb, pc)
+    lam = np.stack(_barycentrics(pa, pb, pc, area, c + 0.5, r + 0.5), 1)      # [K, 3]
     dlam = np.stack([np.stack([pb[:, 1] - pc[:, 1], pc[:, 1] - pa[:, 1], pa[:, 1] - pb[:, 1]], 1),
                      np.stack([pc[:, 0] - pb[:, 0], pa[:, 0] - pc[:, 0], pb[:, 0] - pa[:, 0]], 1)], 0) / area[:, None]
     cv = col[t]                                                                  # [K, 3 vertices, 3 channels]
