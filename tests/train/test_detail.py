@@ -178,7 +178,7 @@ def test_trainer_export_keeps_the_surface_and_the_chosen_level(renderer):
     meshes, infos = {}, {}
     for on in (False, True):
         t = Trainer(tiny, TrainConfig(iterations=40, quick=True, topology=False, log_every=0, color_detail=on,
-                                      vertex_budget=3.0), renderer=renderer)
+                                      vertex_budget=3.0, detail_budget=4.0), renderer=renderer)
         t.train(progress=False, checkpoint_at_end=False)
         meshes[on] = t.final_mesh()
         infos[on] = t.final_info.get("detail")
@@ -192,7 +192,7 @@ def test_trainer_export_keeps_the_surface_and_the_chosen_level(renderer):
     for i in range(1, len(mse)):
         kept = i if better(mse[kept], mse[i]) else kept
     assert info["chosen"] == kept and info["levels"][kept]["psnr"] >= info["levels"][0]["psnr"]
-    cap = int(np.ceil(3.0 * np.mean([tiny.cameras[v].width * tiny.cameras[v].height for v in tiny.train_indices])))
+    cap = int(np.ceil(4.0 * np.mean([tiny.cameras[v].width * tiny.cameras[v].height for v in tiny.train_indices])))
     assert len(meshes[True][0]) == info["levels"][info["chosen"]]["vertices"] <= max(cap, len(meshes[False][0]))
     assert len(info["levels"]) >= 2          # the tiny scene's triangles are large: some level was tried
     for v in tiny.test_indices or tiny.train_indices:
@@ -215,3 +215,22 @@ def test_a_level_must_win_on_most_views_not_on_one(monkeypatch):
     assert not detail.better(best, best * 1.01) and not detail.better(best, best)
     monkeypatch.setattr(detail, "SIGNIFICANCE", 0.0)
     assert detail.better(best, lucky) and detail.better(best, steady) and not detail.better(best, best * 1.01)
+
+
+def test_detail_cap_is_its_own_budget_never_below_the_training_cap():
+    """``--detail-budget`` bounds the export's subdivision per training pixel: 0, or less than
+    ``--vertex-budget``, gives the training cap; no budget at all (``--vertex-budget 0``) leaves
+    ``--max-vertices``, which bounds every case."""
+    from tsplus_wgpu.train.config import TrainConfig
+    from tsplus_wgpu.train.final import detail_cap
+    _, _, cams = _plane_views(4)
+    px = float(np.mean([c.width * c.height for c in cams]))
+
+    def cap(**kw):
+        return detail_cap(TrainConfig(iterations=10, **kw), cams)
+    assert cap(vertex_budget=2.0, detail_budget=8.0) == int(np.ceil(8.0 * px))
+    assert cap(vertex_budget=2.0, detail_budget=0.0) == cap(vertex_budget=2.0, detail_budget=1.0) \
+        == int(np.ceil(2.0 * px))
+    assert cap(vertex_budget=0.0, detail_budget=8.0, max_vertices=12_345) == 12_345
+    assert cap(vertex_budget=2.0, detail_budget=8.0, max_vertices=100) == 100
+    assert TrainConfig(iterations=10).detail_budget == 8.0

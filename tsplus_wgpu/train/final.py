@@ -19,6 +19,8 @@ sphere rather than over the directions the photos saw.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..kernels.loss import supersampled_camera
@@ -199,9 +201,19 @@ def fit_to_views(trainer, positions, triangles, prior, views):
                              supersample=FIT_SUPERSAMPLE, background=t.config.background)
 
 
+def detail_cap(config, cameras):
+    """The most vertices the colour detail may bring the exported mesh to: ``config.detail_budget``
+    x the training pixels (the training cap, ``vertex_budget``, when 0 or smaller), under
+    ``max_vertices``; never the device's bound (the trainer never draws the export)."""
+    budget = max(float(config.detail_budget), float(config.vertex_budget))
+    if config.detail_budget <= 0 or config.vertex_budget <= 0:
+        budget = float(config.vertex_budget)
+    return vertex_cap(replace(config, vertex_budget=budget), cameras).vertices
+
+
 def detailed(trainer, pos_frame, pos_world, triangles, colors):
     """``(positions in the frame, in world units, triangles, colours)``: the mesh subdivided as
-    :func:`~.detail.colour_detail` chooses, within the run's vertex cap (without the device's
+    :func:`~.detail.colour_detail` chooses, within :func:`detail_cap` (without the device's
     bound: the trainer never draws it), and its colours fitted again to every training view."""
     from ..render.mesh_fit import ID_BASE
     t = trainer
@@ -217,7 +229,7 @@ def detailed(trainer, pos_frame, pos_world, triangles, colors):
         return t.mesh_renderer.render((pos, tri, col), cams[i], near=near, supersample=VALIDATION_SUPERSAMPLE,
                                       background=bg).image
 
-    budget = vertex_cap(t.config, cams).vertices
+    budget = detail_cap(t.config, cams)
     tri, steps, info = colour_detail(pos_frame, triangles, colors, cams, imgs, fit, draw, budget,
                                      ID_BASE * ID_BASE - 1)
     t.final_info["detail"] = info
