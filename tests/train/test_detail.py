@@ -162,7 +162,7 @@ def test_colour_detail_budget_and_too_few_views():
     _, steps, info = colour_detail(pos, tri, np.zeros((4, 3)), cams[:5], images[:5], fit, draw, 10_000, 10**6)
     assert steps == [] and "training views" in info["skipped"]
     _, steps, info = colour_detail(pos, tri, np.zeros((4, 3)), cams, images, fit, draw, 4, 10**6)
-    assert steps == [] and "vertex budget" in info["skipped"] and info["levels"] == []
+    assert steps == [] and "detail budget" in info["skipped"] and info["levels"] == []
 
 
 def test_trainer_export_keeps_the_surface_and_the_chosen_level(renderer):

@@ -253,7 +253,7 @@ def detail_line(info):
     if "skipped" in info:
         return f"colour detail: none ({info['skipped']})"
     lv, chosen = info["levels"], info["chosen"]
-    tried = ", ".join(f"{x['psnr']:.2f}" for x in lv[1:]) or "none possible within the vertex budget"
+    tried = ", ".join(f"{x['psnr']:.2f}" for x in lv[1:]) or "none possible within the detail budget"
     if chosen == 0:
         return (f"colour detail: none kept (the {info['held_back']} held-back training views: {lv[0]['psnr']:.2f} dB "
                 f"as trained, subdivided {tried} dB)")

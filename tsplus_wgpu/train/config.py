@@ -233,11 +233,12 @@ class TrainConfig:
               "mesh as trained does; tsplus_wgpu/train/detail.py). Needs --mesh-colors fit",
         flag="--color-detail", check=boolean(), choices=["on", "off"])
     detail_budget: float = option(
-        8.0, "vertices per training pixel the colour detail may bring the exported mesh to (within --max-vertices, "
-             "never below the training cap --vertex-budget; 0: that cap). Only the export is subdivided, so this is not a bound on what "
-             "training can constrain: each vertex colour is fitted to every training view, and the held-back views "
-             "decide how much of it is used. 8 against 2 on the four shared real captures' default runs: +0.00 to "
-             "+0.55 dB held-out, never worse", flag="--detail-budget", check=real(0.0), type=float, metavar="F")
+        8.0, "vertices per training pixel the colour detail may bring the exported mesh to (within "
+             "--max-vertices, never below the training cap --vertex-budget; 0: that cap). Only the export is "
+             "subdivided, so this is not a bound on what training can constrain: each vertex colour is fitted to "
+             "every training view, and the held-back views decide how much of it is used. 8 against 2 on the four "
+             "shared real captures' default runs: +0.00 to +0.55 dB held-out, never worse",
+        flag="--detail-budget", check=real(0.0), type=float, metavar="F")
     mesh_colors: str = option(
         "fit", "vertex colours of the exported mesh: 'fit' solves for the colours that best reproduce the training "
                "photos through the exported, depth-tested mesh (linear least squares, tsplus_wgpu/render/"

@@ -18,8 +18,9 @@ other training views, and the level whose held-back views are drawn best, by a c
 
 Levels are cumulative: level k splits the triangles whose longest edge is larger than
 :data:`LEVEL_PX` [k-1] pixels at the nearest training camera (at the median focal length;
-unit-free), largest first, within the vertex budget: ``--vertex-budget`` x the training
-pixels, the bound that caps training (``--max-vertices`` when the budget is 0).
+unit-free), largest first, within the detail budget: ``--detail-budget`` x the training
+pixels, never below the training cap (``--vertex-budget`` x the training pixels) and under
+``--max-vertices`` (:func:`~.final.detail_cap`).
 
 Splitting is red-green refinement (:func:`split_triangles`): a chosen triangle is split in four
 at its edge midpoints, a neighbour with two split edges is split in four as well, one with a
@@ -37,8 +38,8 @@ VALIDATION_EVERY = 4
 MIN_VALIDATION_VIEWS = 2
 #: the levels' size thresholds in pixels (longest edge at the nearest training camera)
 LEVEL_PX = (16.0, 8.0, 4.0, 2.0)
-#: no subdivision when the vertex budget leaves room for fewer than this fraction more vertices (a
-#: model trained up to its budget: the validation fits would cost minutes and could add nothing)
+#: no subdivision when the detail budget leaves room for fewer than this fraction more vertices (the
+#: validation fits would cost minutes and could add nothing)
 MIN_ROOM = 0.05
 #: a level must beat the best so far by this many standard errors of its per-view gain (0: any
 #: lower mean error on the held-back views). 2 measured against 0 on the four shared real scenes
@@ -150,7 +151,7 @@ def colour_detail(positions, triangles, colors, cameras, images, fit, draw, budg
         info["skipped"] = f"{len(views)} training views: fewer than {MIN_VALIDATION_VIEWS} to hold back"
         return tri, [], info
     if budget - len(positions) < MIN_ROOM * len(positions):
-        info["skipped"] = (f"{len(positions):,} vertices: the vertex budget of {budget:,} leaves no room for "
+        info["skipped"] = (f"{len(positions):,} vertices: the detail budget of {budget:,} leaves no room for "
                            f"{100 * MIN_ROOM:.0f} percent more")
         return tri, [], info
     fitted = [v for v in views if v not in held]
