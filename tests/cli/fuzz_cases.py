@@ -17,9 +17,7 @@ import pytest
 
 import fuzz_data as fd
 
-#: the colour detail at the training cap: these cases test input handling, and the default
-#: detail budget (tests/train/test_detail.py) made each finished run about 0.6 s slower
-TRAIN_FAST = ["--preset", "quick", "--iterations", "30", "--topology", "off", "--no-progress", "--detail-budget", "2"]
+TRAIN_FAST = ["--preset", "quick", "--iterations", "30", "--topology", "off", "--no-progress"]
 S = "sparse/0"
 
 

@@ -205,9 +205,9 @@ def detail_cap(config, cameras):
     """The most vertices the colour detail may bring the exported mesh to: ``config.detail_budget``
     x the training pixels (the training cap, ``vertex_budget``, when 0 or smaller), under
     ``max_vertices``; never the device's bound (the trainer never draws the export)."""
-    budget = max(float(config.detail_budget), float(config.vertex_budget))
-    if config.detail_budget <= 0 or config.vertex_budget <= 0:
-        budget = float(config.vertex_budget)
+    budget = float(config.vertex_budget)
+    if budget > 0 and config.detail_budget > budget:     # (no training budget: --max-vertices bounds both)
+        budget = float(config.detail_budget)
     return vertex_cap(replace(config, vertex_budget=budget), cameras).vertices
 
 
