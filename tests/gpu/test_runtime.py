@@ -23,11 +23,35 @@ def test_pipelines_are_cached(ctx):
     assert ctx.pipeline("scan_add") is ctx.pipeline("scan_add")
 
 
-def test_device_uses_webgpu_default_limits(ctx):
+def test_device_uses_webgpu_default_limits_but_the_adapters_sizes(ctx):
     assert ctx.limits["max-compute-workgroup-storage-size"] == 16384
     assert ctx.limits["max-storage-buffers-per-shader-stage"] == 8
     assert ctx.limits["max-compute-invocations-per-workgroup"] == 256
-    assert ctx.limits["max-storage-buffer-binding-size"] == 128 * 2**20
+    offered = dict(ctx.adapter.limits)
+    asked = gpu.adapter_size_limits(offered)
+    for k in gpu.SIZE_LIMITS:
+        assert ctx.limits[k] == asked[k] <= offered[k], k
+    if offered["max-buffer-size"] > gpu.WEBGPU_DEFAULT_LIMITS["max-buffer-size"]:     # llvmpipe: 2 GiB
+        assert ctx.limits["max-buffer-size"] > gpu.WEBGPU_DEFAULT_LIMITS["max-buffer-size"]
+
+
+def test_webgpu_limits_keep_every_default(monkeypatch, ctx):
+    for plain in (gpu.GpuContext(ctx.adapter, limits="webgpu"), None):
+        if plain is None:
+            monkeypatch.setenv("TSPLUS_WEBGPU_LIMITS", "1")
+            plain = gpu.GpuContext(ctx.adapter)
+        assert plain.limits["max-storage-buffer-binding-size"] == 128 * 2**20
+        assert plain.limits["max-buffer-size"] == 256 * 2**20
+
+
+def test_adapter_size_limits_are_capped_aligned_and_a_binding_fits_a_buffer():
+    f = gpu.adapter_size_limits
+    assert f({"max-storage-buffer-binding-size": 2**32 - 1, "max-buffer-size": 2**64 - 1}) == {
+        "max-storage-buffer-binding-size": gpu.SIZE_LIMIT_CAP, "max-buffer-size": gpu.SIZE_LIMIT_CAP}
+    assert f({"max-storage-buffer-binding-size": 2**27, "max-buffer-size": 2**31 - 1}) == {
+        "max-storage-buffer-binding-size": 2**27, "max-buffer-size": 2**31 - 256}
+    assert f({"max-storage-buffer-binding-size": 2**30, "max-buffer-size": 2**29 + 100}) == {
+        "max-storage-buffer-binding-size": 2**29, "max-buffer-size": 2**29}
 
 
 def test_larger_limit_only_when_available():

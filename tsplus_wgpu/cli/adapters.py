@@ -19,7 +19,7 @@ def add_parser(sub):
 
 
 def run(args):
-    from ..gpu.context import LAVAPIPE_HINT, adapter_description, list_adapters, select_adapter
+    from ..gpu.context import LAVAPIPE_HINT, adapter_description, adapter_size_limits, list_adapters, select_adapter
     adapters = list_adapters()
     if not adapters:
         raise UserError(LAVAPIPE_HINT)
@@ -29,6 +29,10 @@ def run(args):
         feats = set(a.features)
         opt = [name for key, name in (("timestamp-query", "timestamps"), ("shader-float32-atomic", "float32-atomics"),
                                       ("subgroup", "subgroups")) if key in feats]
-        print(f"{mark} {adapter_description(a)}  [{', '.join(opt) or 'no optional features'}]")
-    print("(* = used by default; set TSPLUS_ADAPTER or --adapter to choose)")
+        size = adapter_size_limits(dict(a.limits))
+        print(f"{mark} {adapter_description(a)}  [{', '.join(opt) or 'no optional features'}]  "
+              f"{size['max-storage-buffer-binding-size'] / 2**20:,.0f} MiB per binding, "
+              f"{size['max-buffer-size'] / 2**20:,.0f} MiB per buffer")
+    print("(* = used by default; set TSPLUS_ADAPTER or --adapter to choose; "
+          "TSPLUS_WEBGPU_LIMITS=1 keeps WebGPU's 128 MiB per binding and 256 MiB per buffer)")
     return 0

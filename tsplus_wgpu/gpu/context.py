@@ -1,5 +1,5 @@
-"""The wgpu runtime: adapter choice, device with WebGPU default limits, feature
-detection, the WGSL loader with ``#import``, reflection of bindings and uniform
+"""The wgpu runtime: adapter choice, device with WebGPU default limits (the two size limits
+raised to what the adapter offers, :data:`SIZE_LIMITS`), feature detection, the WGSL loader with ``#import``, reflection of bindings and uniform
 structs from the WGSL source, and the pipeline cache.
 
 The WGSL files are the single source of truth: binding slots and uniform-struct
@@ -65,6 +65,15 @@ WEBGPU_DEFAULT_LIMITS = {
     "max-compute-workgroups-per-dimension": 65535,
 }
 
+#: The limits that decide how large a model, an image and their scratch may grow. A device asks
+#: the adapter for as much of these as it offers (capped at :data:`SIZE_LIMIT_CAP`), unless it is
+#: made with ``limits="webgpu"`` or ``TSPLUS_WEBGPU_LIMITS=1``: llvmpipe offers 128 MiB per
+#: binding (the default) and 2 GiB per buffer, an NVIDIA H100 4 GiB per binding. Everything that
+#: sizes a model or an image reads the device's limits, so a larger binding is used where offered.
+SIZE_LIMITS = ("max-storage-buffer-binding-size", "max-buffer-size")
+#: 2 GiB less 256 bytes: a byte offset into any buffer fits a signed 32-bit integer
+SIZE_LIMIT_CAP = 2**31 - 256
+
 _TYPE_RANK = {"DiscreteGPU": 0, "IntegratedGPU": 1, "VirtualGPU": 2, "CPU": 3, "Unknown": 4}
 _ALIASES = {"lavapipe": "llvmpipe", "cpu": "llvmpipe"}
 
@@ -110,6 +119,15 @@ def select_adapter(name=None):
     raise NoAdapterError(f"--adapter/TSPLUS_ADAPTER {name!r} matches no adapter; available: {names}")
 
 
+def adapter_size_limits(available):
+    """The :data:`SIZE_LIMITS` a device asks an adapter with limits ``available`` for: as much as
+    it offers, at most :data:`SIZE_LIMIT_CAP`, in whole 256 bytes, no binding larger than a buffer."""
+    out = {k: min(int(available.get(k, WEBGPU_DEFAULT_LIMITS[k])), SIZE_LIMIT_CAP) // 256 * 256
+           for k in SIZE_LIMITS}
+    out["max-storage-buffer-binding-size"] = min(out["max-storage-buffer-binding-size"], out["max-buffer-size"])
+    return out
+
+
 @dataclass
 class Features:
     timestamps: bool = False
@@ -123,7 +141,10 @@ class GpuContext:
     Args:
         adapter: an adapter, a name to match (see :func:`select_adapter`) or None.
         limits: larger limits to request, e.g. ``{"max-buffer-size": 2**30}``; each is
-            checked against the adapter and refused with a ValueError when unavailable.
+            checked against the adapter and refused with a ValueError when unavailable. The
+            :data:`SIZE_LIMITS` not named here are the adapter's own (at most
+            :data:`SIZE_LIMIT_CAP`); ``"webgpu"`` (or ``TSPLUS_WEBGPU_LIMITS=1``) keeps every
+            limit at WebGPU's default instead.
         poison: fill every new scratch/output buffer with 0xFF bytes (NaN as float, 2^32-1
             as u32) to catch kernels that rely on zero-initialised memory; also on with
             ``TSPLUS_POISON=1``. For tests and debugging.
@@ -137,7 +158,11 @@ class GpuContext:
         self.info = dict(adapter.info)
         available = dict(adapter.limits)
         req = dict(WEBGPU_DEFAULT_LIMITS)
-        for k, v in (limits or {}).items():
+        if limits == "webgpu" or os.environ.get("TSPLUS_WEBGPU_LIMITS") == "1":
+            limits = dict(limits) if isinstance(limits, dict) else {}
+        else:
+            limits = {**adapter_size_limits(available), **(limits or {})}
+        for k, v in limits.items():
             k = k.replace("_", "-")
             if k not in available:
                 raise ValueError(f"limits: unknown limit {k!r}")
