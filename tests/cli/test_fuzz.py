@@ -107,6 +107,8 @@ def _prepare(case, k, ctx):
 def results(bases, request):
     """Every selected case run once, in parallel forked children of tests/cli/fuzz_server.py:
     case id -> result (``proc``: returncode, stdout, stderr)."""
+    if os.environ.get("PYTEST_XDIST_WORKER") and getattr(request.config.option, "dist", "no") != "loadgroup":
+        pytest.skip("under pytest-xdist every worker would run every fuzz case: add --dist loadgroup")
     wanted = {item.callspec.params["case"].id for item in request.session.items
               if getattr(item, "originalname", None) == "test_fuzz" and Path(str(item.fspath)) == Path(__file__)}
     todo = sorted(((k, c) for k, c in enumerate(CASES) if c.id in wanted), key=lambda kc: -kc[1].cost)
@@ -172,7 +174,17 @@ def _warn_problem(r, names):
     return None
 
 
-@pytest.mark.parametrize("case", [pytest.param(c, id=c.id, marks=c.marks) for c in CASES])
+#: every case on one pytest-xdist worker (with ``--dist loadgroup``): ``results`` runs every selected case once
+#: per process, so twelve workers would run all of them twelve times over
+ONE_WORKER = pytest.mark.xdist_group("fuzz")
+
+
+def _marks(case):
+    own = case.marks if isinstance(case.marks, (list, tuple)) else [case.marks]
+    return [*own, ONE_WORKER]
+
+
+@pytest.mark.parametrize("case", [pytest.param(c, id=c.id, marks=_marks(c)) for c in CASES])
 def test_fuzz(case, results):
     r = results[case.id]
     p = r.proc

@@ -122,3 +122,25 @@ def test_splatting_renderer_agrees_on_an_opaque_model(mr, renderer):
             interior &= pad[dy:dy + 60, dx:dx + 80] == tid
     assert interior.mean() > 0.5
     np.testing.assert_allclose(mesh[interior], splat[interior], atol=0.012)
+
+
+def test_an_uploaded_mesh_draws_what_its_arrays_draw(ctx, mr):
+    """``upload`` once, draw from several views: the same images, depths and coverage as the
+    arrays drawn each time; editing the arrays afterwards does not reach the uploaded copy; a
+    mesh is drawn only by the renderer that uploaded it."""
+    model, cam = random_scene(4, 64, 48, sh_k=1)
+    col = np.random.default_rng(4).uniform(0, 1, (model.num_vertices, 3))
+    pos = model.positions.copy()
+    mesh = mr.upload((pos, model.triangles, col))
+    first = None
+    for k, view in enumerate([cam, look_at_camera(64, 48, eye=(0.5, 0.3, -4.0))]):
+        want = mr.render((model.positions, model.triangles, col), view, supersample=1 + k)
+        got = mr.render(mesh, view, supersample=1 + k)
+        first = want if first is None else first
+        assert want.coverage.mean() > 0.2
+        for a, b in ((got.image, want.image), (got.depth, want.depth), (got.coverage, want.coverage)):
+            np.testing.assert_array_equal(a, b)
+    pos += 10.0
+    np.testing.assert_array_equal(mr.render(mesh, cam).image, first.image)
+    with pytest.raises(ValueError, match="another MeshRenderer"):
+        MeshRenderer(ctx).render(mesh, cam)

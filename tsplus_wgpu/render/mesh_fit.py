@@ -37,10 +37,9 @@ MAX_SAMPLES = 1 << 21
 ID_BASE = 2048      # triangle id = r + ID_BASE * g: both channels stay exact in float32 interpolation
 
 
-def triangle_ids(mesh_renderer, positions, triangles, camera: Camera, near) -> np.ndarray:
-    """``[H, W]`` int64: the triangle the depth-tested mesh renderer draws at each pixel
-    centre of ``camera`` (-1: none). Triangles with a vertex at ``z <= near`` are not drawn,
-    as in :meth:`MeshRenderer.render`."""
+def id_mesh(mesh_renderer, positions, triangles):
+    """The id pass's mesh, uploaded once (:meth:`MeshRenderer.upload`) for every view it is
+    drawn from: ``triangles`` un-indexed, each in the flat colour that encodes its number."""
     tri = np.asarray(triangles, np.int64).reshape(-1, 3)
     m = len(tri)
     if m >= ID_BASE * ID_BASE:
@@ -48,8 +47,17 @@ def triangle_ids(mesh_renderer, positions, triangles, camera: Camera, near) -> n
     pos = np.asarray(positions, np.float32)[tri].reshape(-1, 3)
     k = np.arange(m, dtype=np.int64)
     ids = np.stack([k % ID_BASE, k // ID_BASE, np.zeros(m, np.int64)], 1).astype(np.float32)
-    col = np.repeat(ids, 3, axis=0)
-    res = mesh_renderer.render((pos, np.arange(3 * m, dtype=np.int64).reshape(-1, 3), col), camera, near=near)
+    return mesh_renderer.upload((pos, np.arange(3 * m, dtype=np.int64).reshape(-1, 3), np.repeat(ids, 3, axis=0)))
+
+
+def triangle_ids(mesh_renderer, positions, triangles, camera: Camera, near, uploaded=None) -> np.ndarray:
+    """``[H, W]`` int64: the triangle the depth-tested mesh renderer draws at each pixel
+    centre of ``camera`` (-1: none). Triangles with a vertex at ``z <= near`` are not drawn,
+    as in :meth:`MeshRenderer.render`. ``uploaded``: :func:`id_mesh` of the same mesh, made
+    here when None (pass it when drawing one mesh from several views)."""
+    if uploaded is None:
+        uploaded = id_mesh(mesh_renderer, positions, triangles)
+    res = mesh_renderer.render(uploaded, camera, near=near)
     img = np.asarray(res.image, np.float64)
     out = np.rint(img[..., 0]).astype(np.int64) + ID_BASE * np.rint(img[..., 1]).astype(np.int64)
     out[res.coverage <= 0] = -1
@@ -85,15 +93,16 @@ def fit_supersample(camera: Camera, supersample):
 
 
 def view_system(mesh_renderer, positions, triangles, camera: Camera, image, near, supersample=2,
-                background=(0.0, 0.0, 0.0)):
+                background=(0.0, 0.0, 0.0), uploaded=None):
     """One view's normal-equation terms ``(AtA [N, N] sparse, Aty [N, 3], coverage [H, W])``
-    at ``s x s`` samples per pixel (reduced to :data:`MAX_SAMPLES`)."""
+    at ``s x s`` samples per pixel (reduced to :data:`MAX_SAMPLES`); ``uploaded`` as in
+    :func:`triangle_ids`."""
     from scipy.sparse import csr_matrix
     n = len(positions)
     s = fit_supersample(camera, supersample)
     cam = camera if s == 1 else Camera(camera.width * s, camera.height * s, camera.fx * s, camera.fy * s,
                                        camera.cx * s, camera.cy * s, camera.world_to_camera)
-    ids = triangle_ids(mesh_renderer, positions, triangles, cam, near)
+    ids = triangle_ids(mesh_renderer, positions, triangles, cam, near, uploaded)
     r, c = np.nonzero(ids >= 0)
     tid = ids[r, c]
     b = barycentrics(positions, triangles, cam, tid, r, c)
@@ -128,8 +137,9 @@ def fit_vertex_colors(positions, triangles, cameras, images, prior, near, mesh_r
     if n == 0 or len(tri) == 0:
         return c0.copy(), dict(views=0, observed=0, iterations=0)
     ata, aty = None, np.zeros((n, 3))
+    uploaded = id_mesh(mr, pos, tri)
     for k, (cam, img) in enumerate(zip(cameras, images)):
-        m, r, _ = view_system(mr, pos, tri, cam, img, near, supersample, background)
+        m, r, _ = view_system(mr, pos, tri, cam, img, near, supersample, background, uploaded)
         ata = m if ata is None else ata + m
         aty += r
         if progress is not None:

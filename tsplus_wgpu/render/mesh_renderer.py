@@ -61,6 +61,15 @@ class MeshRenderResult:
         self.coverage = coverage
 
 
+class UploadedMesh:
+    """A mesh whose vertex, colour and index buffers are on the device already
+    (:meth:`MeshRenderer.upload`)."""
+
+    def __init__(self, renderer, vbuf, cbuf, ibuf, count):
+        self.renderer = renderer
+        self.buffers = (vbuf, cbuf, ibuf, count)
+
+
 class MeshRenderer:
     """Draws vertex-coloured triangle meshes with a depth-tested wgpu render pipeline.
 
@@ -126,21 +135,32 @@ class MeshRenderer:
             self._targets = {key: (color, depth, row, readback)}   # keep one size alive
         return self._targets[key]
 
+    def _buffers(self, pos, tri, col):
+        """Vertex, colour and index buffers of checked arrays, and the index count."""
+        dev = self.ctx.device
+        usage_v = wgpu.BufferUsage.VERTEX | wgpu.BufferUsage.COPY_DST
+        vbuf = dev.create_buffer_with_data(data=np.ascontiguousarray(pos, np.float32).tobytes() or bytes(12),
+                                           usage=usage_v)
+        cbuf = dev.create_buffer_with_data(data=np.ascontiguousarray(col, np.float32).tobytes() or bytes(12),
+                                           usage=usage_v)
+        idx = np.ascontiguousarray(tri, np.uint32).ravel()
+        ibuf = dev.create_buffer_with_data(data=(idx.tobytes() if idx.size else bytes(12)),
+                                           usage=wgpu.BufferUsage.INDEX | wgpu.BufferUsage.COPY_DST)
+        return vbuf, cbuf, ibuf, int(idx.size)
+
     def _upload(self, pos, tri, col):
         key = (pos.ctypes.data, pos.shape, tri.ctypes.data, tri.shape, hash(col.tobytes()),
                hash(pos.tobytes()), hash(tri.tobytes()))
         if self._geometry is None or self._geometry[0] != key:
-            dev = self.ctx.device
-            usage_v = wgpu.BufferUsage.VERTEX | wgpu.BufferUsage.COPY_DST
-            vbuf = dev.create_buffer_with_data(data=np.ascontiguousarray(pos, np.float32).tobytes() or bytes(12),
-                                               usage=usage_v)
-            cbuf = dev.create_buffer_with_data(data=np.ascontiguousarray(col, np.float32).tobytes() or bytes(12),
-                                               usage=usage_v)
-            idx = np.ascontiguousarray(tri, np.uint32).ravel()
-            ibuf = dev.create_buffer_with_data(data=(idx.tobytes() if idx.size else bytes(12)),
-                                               usage=wgpu.BufferUsage.INDEX | wgpu.BufferUsage.COPY_DST)
-            self._geometry = (key, vbuf, cbuf, ibuf, int(idx.size))
+            self._geometry = (key, *self._buffers(pos, tri, col))
         return self._geometry[1:]
+
+    def upload(self, mesh):
+        """``mesh`` (as :meth:`render` takes it; a :class:`TriangleModel` gets its SH DC colour)
+        checked and copied to the device once: :meth:`render` draws the returned
+        :class:`UploadedMesh` from any camera without converting, checking or uploading it again
+        (the colour fit draws one mesh from every training view)."""
+        return UploadedMesh(self, *self._buffers(*mesh_arrays(mesh)))
 
     def draw(self, encoder, color_view, depth_view, camera: Camera, positions, colors, triangles, num_triangles,
              sh_size=None, near=0.01, drop_near=True):
@@ -187,7 +207,8 @@ class MeshRenderer:
 
         Args:
             mesh: a :class:`TriangleModel` (colour from its SH for this camera; opacity
-                ignored: the mesh is opaque) or ``(positions [N,3], triangles [M,3], colors [N,3])``.
+                ignored: the mesh is opaque), ``(positions [N,3], triangles [M,3], colors [N,3])``
+                or an :class:`UploadedMesh` of this renderer (:meth:`upload`).
             camera: the :class:`Camera` (its exact pinhole model, pixel centres at +0.5).
             supersample: s >= 1; render at s x the resolution and average s x s blocks.
             background: RGB where nothing is drawn.
@@ -211,7 +232,12 @@ class MeshRenderer:
         if not (np.isfinite(near) and near > 0):
             raise ValueError(f"near: expected a positive number, got {near!r}")
         bg = np.broadcast_to(np.asarray(background, np.float64), (3,))
-        pos, tri, col = mesh_arrays(mesh, camera)
+        if isinstance(mesh, UploadedMesh):
+            if mesh.renderer is not self:
+                raise ValueError("mesh: uploaded by another MeshRenderer; upload it with this one")
+            geometry = mesh.buffers
+        else:
+            geometry = self._upload(*mesh_arrays(mesh, camera))
         w, h = camera.width * s, camera.height * s
         lim = self.ctx.limits.get("max-texture-dimension-2d", 8192)
         if max(w, h) > lim:
@@ -220,7 +246,7 @@ class MeshRenderer:
         params = mesh_params(cam, near, drop_near, linear_color=interpolation == "linear")
         dev = self.ctx.device
         color, depth, row, readback = self._target(w, h)
-        vbuf, cbuf, ibuf, count = self._upload(pos, tri, col)
+        vbuf, cbuf, ibuf, count = geometry
         enc = dev.create_command_encoder()
         self._record(enc, color.create_view(), depth.create_view(), params, self.pipeline, vbuf, cbuf, ibuf, count)
         enc.copy_texture_to_buffer({"texture": color, "mip_level": 0, "origin": (0, 0, 0)},

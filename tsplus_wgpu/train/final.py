@@ -116,14 +116,15 @@ def find_shards(trainer, pos_frame, pos_world, tris, colors, source):
     :data:`SHARD_RESIDUAL` times the mean over every drawn pixel): a flat triangle across free
     space shows different scene content in every view, so no colour fits it. Removing them lets
     the backdrop fill and the colour fit take their pixels."""
-    from ..render.mesh_fit import triangle_ids
+    from ..render.mesh_fit import id_mesh, triangle_ids
     t = trainer
     near = t.config.near
     err, count, total, drawn = np.zeros(len(tris)), np.zeros(len(tris)), 0.0, 0
+    ids_mesh, mesh = id_mesh(t.mesh_renderer, pos_frame, tris), t.mesh_renderer.upload((pos_frame, tris, colors))
     for v in t.train_views:
         cam = t.scene.cameras[v]
-        ids = triangle_ids(t.mesh_renderer, pos_frame, tris, cam, near)
-        img = t.mesh_renderer.render((pos_frame, tris, colors), cam, near=near).image
+        ids = triangle_ids(t.mesh_renderer, pos_frame, tris, cam, near, ids_mesh)
+        img = t.mesh_renderer.render(mesh, cam, near=near).image
         r = np.mean((np.asarray(img, np.float64) - t.scene.images[v]) ** 2, axis=-1)
         ok = ids >= 0
         err += np.bincount(ids[ok], weights=r[ok], minlength=len(tris))
@@ -153,7 +154,7 @@ def backdrop_fill(trainer, positions, triangles, occluders=None):
     view: what a viewpoint between or beside them sees past a surface's edge. No photo shows
     those triangles, so they keep the fresh shell's colours (the photos' mean where they
     project)."""
-    from ..render.mesh_fit import triangle_ids
+    from ..render.mesh_fit import id_mesh, triangle_ids
     t = trainer
     cams = [t.scene.cameras[v] for v in t.train_views]
     radius = None if occluders is None else (1.0 + FILL_BEHIND) * shell_radius(t.scene.points)
@@ -168,8 +169,9 @@ def backdrop_fill(trainer, positions, triangles, occluders=None):
     allpos = np.concatenate([positions, shell.positions])
     alltri = np.concatenate([triangles, shell.triangles + len(positions)])
     seen = np.zeros(len(shell.triangles), bool)
+    ids_mesh = id_mesh(t.mesh_renderer, allpos, alltri)
     for cam in cams:
-        ids = triangle_ids(t.mesh_renderer, allpos, alltri, cam, t.config.near)
+        ids = triangle_ids(t.mesh_renderer, allpos, alltri, cam, t.config.near, ids_mesh)
         seen[ids[ids >= m0] - m0] = True
     if not seen.any():
         return empty
