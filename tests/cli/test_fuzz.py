@@ -104,11 +104,13 @@ def _prepare(case, k, ctx):
 
 
 @pytest.fixture(scope="module")
-def results(bases, request):
+def results(request):
     """Every selected case run once, in parallel forked children of tests/cli/fuzz_server.py:
     case id -> result (``proc``: returncode, stdout, stderr)."""
-    if os.environ.get("PYTEST_XDIST_WORKER") and getattr(request.config.option, "dist", "no") != "loadgroup":
+    main_argv = getattr(request.config, "workerinput", {}).get("mainargv") or []   # a worker's own option is "no"
+    if os.environ.get("PYTEST_XDIST_WORKER") and not any(a.split("=")[-1] == "loadgroup" for a in main_argv):
         pytest.skip("under pytest-xdist every worker would run every fuzz case: add --dist loadgroup")
+    bases = request.getfixturevalue("bases")
     wanted = {item.callspec.params["case"].id for item in request.session.items
               if getattr(item, "originalname", None) == "test_fuzz" and Path(str(item.fspath)) == Path(__file__)}
     todo = sorted(((k, c) for k, c in enumerate(CASES) if c.id in wanted), key=lambda kc: -kc[1].cost)
