@@ -215,10 +215,65 @@ def run_bench_backward(args):
     return 0
 
 
+# ---------------------------------------------------------------------------------------- tsplus bench-scale
+
+def _count(text):
+    """``500000``, ``500k``, ``0.5M`` -> 500000 (argparse type of ``--vertices``)."""
+    import argparse
+    t = str(text).strip().lower()
+    scale = {"k": 1e3, "m": 1e6}.get(t[-1:], 1.0)
+    try:
+        n = float(t[:-1] if scale != 1.0 else t) * scale
+    except ValueError:
+        n = float("nan")
+    if not (n >= 3 and n == n):
+        raise argparse.ArgumentTypeError(f"expected a vertex count such as 500000, 500k or 0.5M, got {text!r}")
+    return int(round(n))
+
+
+def add_scale_parser(sub):
+    """``tsplus bench-scale``: paper-sized models, forward + backward (:mod:`tsplus_wgpu.bench.scale`)."""
+    from ..bench import scale
+    p = sub.add_parser("bench-scale", help="forward + backward of paper-sized models (0.5M-3M vertices, SH degree 3, "
+                                           "1920x1080): stages, device memory, pairs per pixel, the twin on a crop",
+                       description=scale.__doc__)
+    p.add_argument("--vertices", type=_count, nargs="+", default=list(scale.SCALE_SIZES), metavar="N",
+                   help="model sizes in vertices, e.g. 500k 1M (default 0.5M 1M 2M 3M)")
+    p.add_argument("--width", type=int, default=1920)
+    p.add_argument("--height", type=int, default=1080)
+    p.add_argument("--sh-degree", type=int, default=3, choices=range(4))
+    p.add_argument("--sigma", type=float, default=0.5)
+    p.add_argument("--repeats", type=int, default=1, help="timed runs per size; medians (default 1: llvmpipe is slow)")
+    p.add_argument("--no-twin", action="store_true", help="skip the float64 twin on a 32x32 crop")
+    p.add_argument("--json", default=None, help="write the result here")
+    add_adapter_arg(p)
+    return p
+
+
+def run_bench_scale(args):
+    """``tsplus bench-scale``: one line per size as it finishes, the table, and JSON with ``--json``."""
+    from .. import reference
+    from ..bench.scale import format_table, scale_report
+    from ..render.renderer import Renderer
+    if args.width < 32 or args.height < 32 or args.repeats < 1:
+        raise ValueError("--width/--height: at least 32 (the twin's crop); --repeats: at least 1")
+    renderer = Renderer(args.adapter)
+    print(f"adapter: {renderer.ctx.name}", flush=True)
+    result = scale_report(renderer, args.vertices, args.width, args.height, args.sh_degree, args.sigma, args.repeats,
+                          reference_render=None if args.no_twin else reference.render,
+                          log=lambda line: print(line, flush=True))
+    print()
+    print(format_table(result))
+    if args.json:
+        _write_json(args.json, result, default=float)
+    return 0
+
+
 # ---------------------------------------------------------------------------------------- table
 
 #: command name -> ``run(args) -> exit code``
-COMMANDS = {"bench": run_bench, "bench-raster": run_bench_raster, "bench-backward": run_bench_backward}
+COMMANDS = {"bench": run_bench, "bench-raster": run_bench_raster, "bench-backward": run_bench_backward,
+            "bench-scale": run_bench_scale}
 
 
 def add_parsers(sub):
@@ -226,6 +281,7 @@ def add_parsers(sub):
     add_raster_parser(sub)
     add_bench_parser(sub)
     add_backward_parser(sub)
+    add_scale_parser(sub)
 
 
 def run(args):
@@ -234,4 +290,4 @@ def run(args):
 
 
 __all__ = ["COMMANDS", "add_parsers", "run", "add_bench_parser", "add_raster_parser", "add_backward_parser",
-           "run_bench", "run_bench_raster", "run_bench_backward", "command_line", "check_bench_args"]
+           "add_scale_parser", "run_bench", "run_bench_raster", "run_bench_backward", "run_bench_scale", "command_line", "check_bench_args"]

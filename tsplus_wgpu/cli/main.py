@@ -29,6 +29,7 @@ environment:
   TSPLUS_ADAPTER   adapter to use (substring of its name; 'lavapipe' = Mesa's CPU driver)
   TSPLUS_DATA      folder of real scenes for tests and benchmarks (default ../shared/data)
   TSPLUS_DEBUG     1: show the traceback of an error too (for a bug report)
+  TSPLUS_WEBGPU_LIMITS  1: WebGPU's default buffer sizes (128 MiB per binding), not the adapter's own
 """
 
 
@@ -47,6 +48,7 @@ COMMANDS = {
     "bench": ("bench", "add_bench_parser"),
     "select": ("select", "add_parser"),
     "bench-backward": ("bench", "add_backward_parser"),
+    "bench-scale": ("bench", "add_scale_parser"),
 }
 
 
