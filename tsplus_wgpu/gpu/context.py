@@ -1,6 +1,7 @@
 """The wgpu runtime: adapter choice, device with WebGPU default limits (the two size limits
-raised to what the adapter offers, :data:`SIZE_LIMITS`), feature detection, the WGSL loader with ``#import``, reflection of bindings and uniform
-structs from the WGSL source, and the pipeline cache.
+raised to what the adapter offers, :data:`SIZE_LIMITS`), feature detection, the WGSL loader
+with ``#import``, reflection of bindings and uniform structs from the WGSL source, and the
+pipeline cache.
 
 The WGSL files are the single source of truth: binding slots and uniform-struct
 layouts are read out of them, so host and shader cannot drift apart.
@@ -68,7 +69,7 @@ WEBGPU_DEFAULT_LIMITS = {
 #: The limits that decide how large a model, an image and their scratch may grow. A device asks
 #: the adapter for as much of these as it offers (capped at :data:`SIZE_LIMIT_CAP`), unless it is
 #: made with ``limits="webgpu"`` or ``TSPLUS_WEBGPU_LIMITS=1``: llvmpipe offers 128 MiB per
-#: binding (the default) and 2 GiB per buffer, an NVIDIA H100 4 GiB per binding. Everything that
+#: binding (the default) and 2 GiB per buffer, an NVIDIA H100 at least the cap. Everything that
 #: sizes a model or an image reads the device's limits, so a larger binding is used where offered.
 SIZE_LIMITS = ("max-storage-buffer-binding-size", "max-buffer-size")
 #: 2 GiB less 256 bytes: a byte offset into any buffer fits a signed 32-bit integer
