@@ -67,7 +67,7 @@ def test_smoke_report_structure_and_finite(smoke):
     assert len(s["plots"]) == 4
     md = (smoke / "report.md").read_text()
     for head in ("## Headline", "Per-stage time", "Blend kernels", "Vertices vs PSNR", "Ablations", m["adapter"],
-                 m["commit"]):
+                 m["commit"], f"kernel layout: {m['layout']}", f"kernel layout {m['layout']}"):
         assert head in md
 
 

@@ -40,6 +40,7 @@ def test_bench_raster_writes_finite_report(tmp_path, capsys):
                  "--repeats", "2", "--json", str(out)]) == 0
     rep = json.loads(out.read_text())
     assert rep["adapter"] and rep["peak"]["flops_per_s"] > 0
+    assert rep["layout"].startswith("lavapipe's: 16 invocations a 16x16 tile") and "kernel layout" in capsys.readouterr().out
     assert [r["triangles"] for r in rep["rows"]] == [500, 2000]
     for r in rep["rows"]:
         assert "rasterize_forward" in r["stage_ms_median"]

@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 
+from ..kernels.blend import kernel_layout
 from .measure import (BACKWARD_BLEND_FLOPS, backward_blend_flops, backward_blend_work, git_commit,
                       measure_peak_flops, synthetic_scene)
 
@@ -64,7 +65,7 @@ def format_table(result):
     """The result of :func:`backward_report` as text: the stages side by side, ratio, fraction of peak."""
     row = result["row"]
     peak = result["peak"]["flops_per_s"]
-    out = [f"adapter: {result['adapter']}   timing: {result['timing']}",
+    out = [f"adapter: {result['adapter']}   timing: {result['timing']}   kernel layout: {result.get('layout', '?')}",
            f"scene: {row['triangles']:,} triangles, {row['width']}x{row['height']}, sigma {row['sigma']}, "
            f"{row['pairs']:,} tile-triangle pairs; medians of {row['repeats']}",
            f"peak FMA rate: {peak / 1e9:.1f} GFLOP/s", ""]
@@ -93,7 +94,7 @@ def backward_report(renderer, m=100_000, width=640, height=480, sigma=0.5, repea
     ctx = renderer.ctx
     peak = measure_peak_flops(ctx)
     row = bench_backward(renderer, m, width, height, sigma, repeats, progress=progress)
-    return {"adapter": ctx.name, "adapter_info": {k: str(v) for k, v in ctx.info.items()},
+    return {"adapter": ctx.name, "adapter_info": {k: str(v) for k, v in ctx.info.items()}, "layout": kernel_layout(),
             "timing": "timestamp queries" if ctx.features.timestamps else "host (per-stage submits)",
             "host": platform.node(), "date": time.strftime("%Y-%m-%d %H:%M:%S"), "peak": peak, "row": row,
             "backward_blend_flops_model": BACKWARD_BLEND_FLOPS, "commit": git_commit()}

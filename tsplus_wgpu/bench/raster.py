@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from ..kernels.blend import kernel_layout
 from .measure import BLEND_FLOPS, blend_flops, git_commit, measure_peak_flops, synthetic_scene
 
 def _time_forward(renderer, model, cam, sigma, repeats, progress=None):
@@ -78,6 +79,7 @@ def format_table(result):
     lines = []
     peak = result["peak"]["flops_per_s"]
     lines.append(f"adapter: {result['adapter']}   commit: {result['commit']}   timing: {result['timing']}")
+    lines.append(f"kernel layout: {result.get('layout', '?')}")
     lines.append(f"peak FMA rate: {peak / 1e9:.1f} GFLOP/s (median of {len(result['peak']['seconds_all'])})")
     stage_names = []
     for row in result["rows"]:
@@ -115,6 +117,7 @@ def raster_report(renderer, counts, width=640, height=480, sigma=0.5, repeats=5,
                         progress=progress)
     return {
         "adapter": ctx.name, "adapter_info": {k: str(v) for k, v in ctx.info.items()},
+        "layout": kernel_layout(),
         "timing": "timestamp queries" if ctx.features.timestamps else "host (per-stage submits)",
         "commit": git_commit(), "host": platform.node(), "python": platform.python_version(),
         "date": time.strftime("%Y-%m-%d %H:%M:%S"), "peak": peak, "rows": rows,

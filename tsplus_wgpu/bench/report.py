@@ -173,8 +173,8 @@ def _stop_reason(reason):
 def _caption(report, s, iterations, runs=()):
     m = report["meta"]
     commits = sorted({s["runs"][k]["commit"] for k in runs if s["runs"].get(k, {}).get("commit")}) or [m["commit"]]
-    return (f"adapter {m['adapter']}, {s['resolution'][0]}x{s['resolution'][1]}, {iterations} iterations, "
-            f"commit {'+'.join(commits)}")
+    return (f"adapter {m['adapter']}, kernel layout {m.get('layout', '?')}, {s['resolution'][0]}x{s['resolution'][1]}, "
+            f"{iterations} iterations, commit {'+'.join(commits)}")
 
 
 def _md_header(report):
@@ -182,8 +182,8 @@ def _md_header(report):
     m = report["meta"]
     peak = report.get("peak") or {}
     L = ["# tsplus bench report", "",
-         f"- adapter: **{m['adapter']}** ({m['timing']}); commit `{m['commit']}`; {m['date']}; host {m['host']}, "
-         f"{m['cpus']} CPUs",
+         f"- adapter: **{m['adapter']}** ({m['timing']}); kernel layout: {m.get('layout', '?')}; commit "
+         f"`{m['commit']}`; {m['date']}; host {m['host']}, {m['cpus']} CPUs",
          f"- command: `{m['command']}`",
          f"- wall time of this invocation: {m['seconds'] / 60:.1f} min" + (" (some runs from the cache)" if m.get("cached_runs") else ""),
          f"- CPU load average (1 min) at start / end: {m['loadavg_start'][0]:.2f} / {m.get('loadavg_end', [float('nan')])[0]:.2f}"

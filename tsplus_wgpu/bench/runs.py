@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.atomic import write_text
+from ..kernels.blend import kernel_layout
 from ..train.callbacks import TrainCallback
 from .measure import git_commit, measure_blend, peak_record, stats, timing_name
 from .plans import curve_iterations, eval_views
@@ -379,7 +380,8 @@ def _start(out, adapter, progress, fresh, command, smoke, plans):
     bench = Bench(out, renderer, mr, progress=progress, fresh=fresh)
     meta = dict(adapter=ctx.name, is_cpu=bool(ctx.is_cpu), commit=git_commit(), date=time.strftime("%Y-%m-%d %H:%M:%S"),
                 host=platform.node(), cpus=os.cpu_count(), python=platform.python_version(), command=command,
-                timing=timing_name(ctx), loadavg_start=list(os.getloadavg()), smoke=bool(smoke), _peaks=bench.peaks)
+                timing=timing_name(ctx), layout=kernel_layout(), loadavg_start=list(os.getloadavg()), smoke=bool(smoke),
+                _peaks=bench.peaks)
     print(f"adapter: {ctx.name}; commit {meta['commit']}; scenes: {', '.join(p.name for p in plans)}", flush=True)
     return bench, meta
 

@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 
+from ..kernels.blend import kernel_layout
 from ..types import Camera, TriangleModel
 from .measure import git_commit
 
@@ -136,7 +137,7 @@ def scale_report(renderer, sizes=SCALE_SIZES, width=1920, height=1080, sh_degree
             log(format_row(rows[-1]))
     return {"adapter": ctx.name, "timing": "timestamp queries" if ctx.features.timestamps else "host clock",
             "storage_binding_bytes": int(ctx.limits["max-storage-buffer-binding-size"]),
-            "layout": "lavapipe (16 invocations a tile)", "commit": git_commit(), "python": platform.python_version(),
+            "layout": kernel_layout(), "commit": git_commit(), "python": platform.python_version(),
             "sigma": sigma, "repeats": int(repeats), "rows": rows}
 
 

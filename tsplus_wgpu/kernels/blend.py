@@ -11,6 +11,15 @@ from ..gpu.wgsl import constant
 BLEND_PASS_PAIRS = constant("PASS_PAIRS", "rasterize_forward")
 
 
+def kernel_layout():
+    """The blend kernels' layout as the benchmarks name it, read from the WGSL: the invocations
+    of one tile's workgroup and the pixels each one blends (one layout today: lavapipe's)."""
+    tile, threads = int(constant("TILE", "frame")), int(constant("THREADS", "rasterize_forward"))
+    if int(constant("THREADS", "rasterize_backward")) != threads:
+        raise RuntimeError("rasterize_forward and rasterize_backward disagree on THREADS: name both layouts here")
+    return f"lavapipe's: {threads} invocations a {tile}x{tile} tile, {tile * tile // threads} pixels each"
+
+
 class RasterizeForward(Stage):
     """The forward blend: image, final T, per-pixel (last contributing, evaluated) pair counts,
     per-triangle max weight and the work counters."""
