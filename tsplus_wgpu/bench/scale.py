@@ -15,6 +15,7 @@ import math
 import platform
 import statistics
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -60,9 +61,10 @@ def scale_scene(num_vertices, width=1920, height=1080, sh_degree=3, layers=3, op
 
 
 def crop_twin(reference_render, model, camera, sigma, x0, y0, size=CROP):
-    """The twin's forward image of the ``size`` x ``size`` pixels at ``(x0, y0)`` of ``camera``:
-    the triangles whose projected bounds touch the crop (2 px margin), drawn by a camera whose
-    principal point is moved so that its pixels are those of the crop."""
+    """The twin's forward ``image``, ``ambiguous`` and ``f32_bound`` on the ``size`` x ``size``
+    pixels at ``(x0, y0)`` of ``camera``, and how many triangles it drew: the triangles whose
+    projected bounds touch the crop (2 px margin), drawn by the whole camera, so that pixel
+    coordinates (and the twin's float32 error model, which grows with them) are the kernel's."""
     p = model.positions @ camera.R.T + camera.t
     z = np.maximum(p[:, 2], 1e-9)
     px, py = camera.fx * p[:, 0] / z + camera.cx, camera.fy * p[:, 1] / z + camera.cy
@@ -75,8 +77,10 @@ def crop_twin(reference_render, model, camera, sigma, x0, y0, size=CROP):
     remap = np.full(model.num_vertices, -1, np.int64)
     remap[used] = np.arange(len(used))
     part = TriangleModel(model.positions[used], remap[sub], model.sh[used], model.opacity[used])
-    cam = Camera(size, size, camera.fx, camera.fy, camera.cx - x0, camera.cy - y0, camera.world_to_camera)
-    return reference_render(part, cam, sigma), int(keep.sum())
+    full = reference_render(part, camera, sigma)
+    window = (slice(y0, y0 + size), slice(x0, x0 + size))
+    out = SimpleNamespace(image=full.image[window], ambiguous=full.ambiguous[window], f32_bound=full.f32_bound[window])
+    return out, int(keep.sum())
 
 
 def scale_row(renderer, num_vertices, width, height, sh_degree=3, sigma=0.5, repeats=1, reference_render=None):
