@@ -57,5 +57,16 @@ def test_trainer_step_supersampled_matches_host_chain(renderer):
     big = renderer.forward(t.model, supersampled_camera(t.scene.cameras[0], 4), 0.5, cfg.background, cfg.near).image
     np.testing.assert_allclose(img, downsample_area(big, 4), atol=1e-6)
     assert t.fit_supersample(cam, 4) == 4
-    assert t.fit_supersample(Camera(4000, 3000, 1.0, 1.0, 0.0, 0.0, np.eye(4)), 4) == 1   # 16 B x 192M: too big
-    assert t.fit_supersample(Camera(1000, 1000, 1.0, 1.0, 0.0, 0.0, np.eye(4)), 4) == 2
+    big, mid = Camera(4000, 3000, 1.0, 1.0, 0.0, 0.0, np.eye(4)), Camera(1000, 1000, 1.0, 1.0, 0.0, 0.0, np.eye(4))
+    saved = dict(t.ctx.limits)     # the answer depends on the device's sizes: set them (any adapter)
+    try:
+        t.ctx.limits.update({"max-storage-buffer-binding-size": 2**27, "max-buffer-size": 2**28})   # WebGPU's
+        assert t.fit_supersample(big, 4) == 1       # 16 B x 12M x s^2 over 128 MiB even at s = 2
+        assert t.fit_supersample(mid, 4) == 2
+        t.ctx.limits.update({"max-storage-buffer-binding-size": 2**31 - 256, "max-buffer-size": 2**31 - 256})
+        assert t.fit_supersample(big, 4) == 2 and t.fit_supersample(mid, 4) == 4          # an H100's 2 GiB
+        t.ctx.limits.update({"max-buffer-size": 2**27})                                   # the smaller of the two
+        assert t.fit_supersample(mid, 4) == 2
+    finally:
+        t.ctx.limits.clear()
+        t.ctx.limits.update(saved)
