@@ -208,16 +208,23 @@ def test_empty_model_is_rejected(renderer):
         renderer.forward(model, look_at_camera(8, 8), 1.0)
 
 
-def test_sizes_over_device_limits(renderer):
+def _webgpu_binding(monkeypatch, ctx):
+    """The device's binding size as WebGPU's default for the checks (a GPU's own is up to 2 GiB)."""
+    monkeypatch.setitem(ctx.limits, "max-storage-buffer-binding-size", 2**27)
+
+
+def test_sizes_over_device_limits(renderer, monkeypatch):
+    _webgpu_binding(monkeypatch, renderer.ctx)
     model, _ = good()
     huge = look_at_camera(12000, 12000)   # 12000^2 * 12 bytes > 128 MiB per binding
     with pytest.raises(ValueError, match="image: needs .* MiB .* storage-binding limit"):
         renderer.forward(model, huge, 1.0)
 
 
-def test_too_many_pairs_is_a_clear_error(renderer):
+def test_too_many_pairs_is_a_clear_error(renderer, monkeypatch):
     # at 3000x2000 (23.5k tiles) each screen-covering triangle gives 23.5k pairs: 1500 of
     # them need 35M pairs = 141 MiB, over the 128 MiB binding limit
+    _webgpu_binding(monkeypatch, renderer.ctx)
     cam = look_at_camera(3000, 2000)
     big = np.array([[-60, 40, 0], [60, 40, 0], [0, -80, 0]], float)
     k = 1500
