@@ -58,6 +58,12 @@ def test_errors_are_one_line(tmp_path):
     assert out.returncode == 2 and "matches no adapter" in out.stderr and "Traceback" not in out.stderr
 
 
-def test_adapters_lists_lavapipe_or_gpu(capsys):
+def test_adapters_lists_lavapipe_or_gpu(capsys, monkeypatch):
+    import re
     assert main(["adapters"]) == 0
-    assert "*" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "*" in out and re.search(r"[\d,]+ MiB per binding, [\d,]+ MiB per buffer", out)
+    monkeypatch.setenv("TSPLUS_WEBGPU_LIMITS", "1")      # what a device gets then: WebGPU's sizes
+    assert main(["adapters"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first.endswith("128 MiB per binding, 256 MiB per buffer")

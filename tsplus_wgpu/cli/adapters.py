@@ -19,7 +19,8 @@ def add_parser(sub):
 
 
 def run(args):
-    from ..gpu.context import LAVAPIPE_HINT, adapter_description, adapter_size_limits, list_adapters, select_adapter
+    from ..gpu.context import (LAVAPIPE_HINT, WEBGPU_DEFAULT_LIMITS, adapter_description, adapter_size_limits,
+                               list_adapters, select_adapter)
     adapters = list_adapters()
     if not adapters:
         raise UserError(LAVAPIPE_HINT)
@@ -29,7 +30,8 @@ def run(args):
         feats = set(a.features)
         opt = [name for key, name in (("timestamp-query", "timestamps"), ("shader-float32-atomic", "float32-atomics"),
                                       ("subgroup", "subgroups")) if key in feats]
-        size = adapter_size_limits(dict(a.limits))
+        size = (WEBGPU_DEFAULT_LIMITS if os.environ.get("TSPLUS_WEBGPU_LIMITS") == "1"     # what a device gets
+                else adapter_size_limits(dict(a.limits)))
         print(f"{mark} {adapter_description(a)}  [{', '.join(opt) or 'no optional features'}]  "
               f"{size['max-storage-buffer-binding-size'] / 2**20:,.0f} MiB per binding, "
               f"{size['max-buffer-size'] / 2**20:,.0f} MiB per buffer")
