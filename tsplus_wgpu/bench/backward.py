@@ -11,7 +11,7 @@ import time
 import numpy as np
 
 from ..kernels.blend import kernel_layout
-from .measure import (BACKWARD_BLEND_FLOPS, backward_blend_flops, backward_blend_work, git_commit,
+from .measure import (BACKWARD_BLEND_FLOPS, backward_blend_flops, backward_blend_work, git_commit, stage_medians,
                       measure_peak_flops, synthetic_scene)
 
 
@@ -42,8 +42,7 @@ def bench_backward(renderer, m=100_000, width=640, height=480, sigma=0.5, repeat
         bwd_wall.append(t2 - t1)
         if progress:
             progress()
-    med = lambda runs: {k: statistics.median(r.get(k, 0.0) for r in runs) for k in runs[0]}
-    fwd, bwd = med(fwd_runs), med(bwd_runs)
+    fwd, bwd = stage_medians(fwd_runs), stage_medians(bwd_runs)
     work = backward_blend_work(renderer.ctx, g)
     assert work["evaluations"] == int(res.n_contrib.astype(np.int64).sum())
     flops = backward_blend_flops(work)

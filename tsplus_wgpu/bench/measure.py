@@ -92,6 +92,12 @@ def stats(values):
 
 # ---------------------------------------------------------------------------------------- peak
 
+def stage_medians(runs):
+    """Per-stage medians of ``runs``, a list of ``{stage: ms}`` dicts (the first one's stages;
+    a stage missing from a run counts 0)."""
+    return {k: statistics.median(r.get(k, 0.0) for r in runs) for k in runs[0]}
+
+
 def measure_peak_flops(ctx: GpuContext, repeats=5, target_s=0.15):
     """Peak FMA throughput (FLOP/s) of ``ctx``'s device, by ``shaders/bench/peak_fma.wgsl``:
     8 independent vec4 FMA chains per invocation. Median of ``repeats``."""
@@ -230,5 +236,5 @@ def synthetic_scene(num_triangles, width=640, height=480, depth_complexity=8.0, 
 
 
 __all__ = ["BLEND_FLOPS", "BACKWARD_BLEND_FLOPS", "blend_flops", "backward_blend_flops", "backward_blend_work",
-           "git_commit", "timing_name", "finite", "stats", "measure_peak_flops", "peak_record", "measure_blend",
+           "git_commit", "timing_name", "finite", "stats", "stage_medians", "measure_peak_flops", "peak_record", "measure_blend",
            "synthetic_scene"]

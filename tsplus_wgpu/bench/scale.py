@@ -21,7 +21,7 @@ import numpy as np
 
 from ..kernels.blend import kernel_layout
 from ..types import Camera, TriangleModel
-from .measure import git_commit
+from .measure import git_commit, stage_medians, timing_name
 
 #: the vertex counts measured by default (issue 13: the paper's scenes end near 2M, its cap is 3M)
 SCALE_SIZES = (500_000, 1_000_000, 2_000_000, 3_000_000)
@@ -47,8 +47,7 @@ def scale_scene(num_vertices, width=1920, height=1080, sh_degree=3, layers=3, op
         p = np.stack([u * z * width / (2 * f), v * z * height / (2 * f), z], -1).reshape(-1, 3)
         idx = np.arange(nx * ny).reshape(ny, nx)
         a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-        base = sum(len(q) for q in pos)
-        tri.append(np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)]) + base)
+        tri.append(np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)]) + k * nx * ny)
         pos.append(p)
     pos = np.concatenate(pos).astype(np.float32).astype(np.float64)
     n, kk = len(pos), (int(sh_degree) + 1) ** 2
@@ -65,9 +64,8 @@ def crop_twin(reference_render, model, camera, sigma, x0, y0, size=CROP):
     pixels at ``(x0, y0)`` of ``camera``, and how many triangles it drew: the triangles whose
     projected bounds touch the crop (2 px margin), drawn by the whole camera, so that pixel
     coordinates (and the twin's float32 error model, which grows with them) are the kernel's."""
-    p = model.positions @ camera.R.T + camera.t
-    z = np.maximum(p[:, 2], 1e-9)
-    px, py = camera.fx * p[:, 0] / z + camera.cx, camera.fy * p[:, 1] / z + camera.cy
+    uv = camera.project(model.positions)[0]
+    px, py = uv[:, 0], uv[:, 1]
     t = model.triangles
     lo_x, hi_x = px[t].min(1), px[t].max(1)
     lo_y, hi_y = py[t].min(1), py[t].max(1)
@@ -110,8 +108,8 @@ def scale_row(renderer, num_vertices, width, height, sh_degree=3, sigma=0.5, rep
     except ValueError as exc:      # GpuContext.check_size: a buffer over the storage-binding limit
         row["refused"] = str(exc)
         return row
-    med = lambda runs: {k: statistics.median(r.get(k, 0.0) for r in runs) for k in runs[0]}   # noqa: E731
-    row.update(forward_stage_ms=med(fwd), backward_stage_ms=med(bwd), wall_ms=1e3 * statistics.median(walls),
+    row.update(forward_stage_ms=stage_medians(fwd), backward_stage_ms=stage_medians(bwd),
+               wall_ms=1e3 * statistics.median(walls),
                pairs=int(res.num_pairs), pairs_per_pixel=res.num_pairs / (width * height),
                device_bytes_peak=ctx.peak_bytes() - before)
     row["forward_ms"], row["backward_ms"] = sum(row["forward_stage_ms"].values()), sum(row["backward_stage_ms"].values())
@@ -139,7 +137,7 @@ def scale_report(renderer, sizes=SCALE_SIZES, width=1920, height=1080, sh_degree
         rows.append(scale_row(renderer, n, width, height, sh_degree, sigma, repeats, reference_render))
         if log:
             log(format_row(rows[-1]))
-    return {"adapter": ctx.name, "timing": "timestamp queries" if ctx.features.timestamps else "host clock",
+    return {"adapter": ctx.name, "timing": timing_name(ctx),
             "storage_binding_bytes": int(ctx.limits["max-storage-buffer-binding-size"]),
             "layout": kernel_layout(), "commit": git_commit(), "python": platform.python_version(),
             "sigma": sigma, "repeats": int(repeats), "rows": rows}
