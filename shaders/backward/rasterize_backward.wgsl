@@ -9,6 +9,9 @@
 // the pixel's last pair come from `state` (backward_prepare) and go back to it, so the
 // rounds can be split over several dispatches (PassParams).
 //
+// A view with more pairs than one binding of `partials` holds is done in windows of
+// pairs (whole tiles each, PassParams.pair_lo / pair_hi), one after the other.
+//
 // Deterministic and atomic-free for floats. Pairs are taken RB at a time (a round); the
 // triangles are staged as 5 raw vec4s, the window's 9 numbers first, the colour read only
 // where some pixel of the invocation reaches the triangle (every load from workgroup
@@ -29,8 +32,8 @@
 struct PassParams {
     round_begin: u32,   // rounds [round_begin, round_end) of RB pairs in this dispatch: lavapipe
     round_end: u32,     // stops any invocation's loops after 65535 iterations in total
-    _pad0: u32,
-    _pad1: u32,
+    pair_lo: u32,       // the pair window: only tiles whose first pair is in [pair_lo, pair_hi)
+    pair_hi: u32,       // replay, and pair p's statistics go to partials[p - pair_lo]
 }
 
 @group(0) @binding(0) var<uniform> params: FrameParams;
@@ -40,7 +43,7 @@ struct PassParams {
 @group(0) @binding(4) var<storage, read> tris: array<vec4<f32>>;        // [M, 6]: Tri2D as raw vec4s
 @group(0) @binding(5) var<storage, read> v_out: array<vec4<f32>>;       // [H, W]: dL/d image (xyz), dL/d T (w)
 @group(0) @binding(6) var<storage, read_write> state: array<vec4<f32>>; // [H, W]: T, acc, Z, last (backward_prepare)
-@group(0) @binding(7) var<storage, read_write> partials: array<vec4<f32>>;  // [P, NSTAT / 4]
+@group(0) @binding(7) var<storage, read_write> partials: array<vec4<f32>>;  // [window, NSTAT / 4]
 // Work done, for the benchmark's FLOP count: [0] pixel-pair evaluations, [1] those that
 // reached the power (ratio >= tau), [2] contributions.
 @group(0) @binding(8) var<storage, read_write> work: array<atomic<u32>>; // [3]
@@ -236,8 +239,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         atomicMax(&max_last, mylast);
     }
     workgroupBarrier();
-    if (li == 0u) {
-        rounds_shared = atomicLoad(&max_last);
+    if (li == 0u) {   // a tile outside the pair window replays nothing in this dispatch
+        let inside = range.x >= pp.pair_lo && range.x < pp.pair_hi;
+        rounds_shared = select(0u, atomicLoad(&max_last), inside);
     }
     let tile_last = workgroupUniformLoad(&rounds_shared);   // pairs any pixel of the tile replays
     let round_end = min((tile_last + RB - 1u) / RB, pp.round_end);
@@ -344,7 +348,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
                     m2 += a2 * dxi;
                 }
                 // grad_stats layout: [3 c + m] colour c, moment m; [9 + 3 k + m] edge k; [18] o
-                let pb = (first + li) * (NSTAT / 4u);
+                let pb = (first + li - pp.pair_lo) * (NSTAT / 4u);
                 partials[pb] = vec4<f32>(s0.x, m0.x, s1.x, s0.y);
                 partials[pb + 1u] = vec4<f32>(m0.y, s1.y, s0.z, m0.z);
                 partials[pb + 2u] = vec4<f32>(s1.z, s2.x, m2.x, s3.x);

@@ -112,6 +112,45 @@ def test_rasterize_backward(renderer, case, rounds_per_pass):
 
 
 @pytest.mark.parametrize("case", CASES)
+def test_rasterize_backward_in_pair_windows(renderer, case):
+    """Window by window (the tiles whose first pair lies in each window, pair p's statistics
+    at p - lo): every pair's statistics and every pixel's state as in one dispatch, the work
+    counters summed over the windows."""
+    from tsplus_wgpu.render.backward import pair_windows
+    c, d = renderer.ctx, forward_data(renderer, case)
+    k = RasterizeBackward(c)
+    cam, P = d["cam"], d["num_pairs"]
+    tx, ty = (cam.width + 15) // 16, (cam.height + 15) // 16
+    state0, st, last = prepared(d)
+    max_range = int((d["ranges"][:, 1] - d["ranges"][:, 0]).max())
+    windows = pair_windows(P, max_range, max_range + P // 3)
+    assert len(windows) >= 3
+    bufs = {name: c.upload(np.ascontiguousarray(d[name]), name) for name in ("ranges", "pair_tris", "tris", "v_out")}
+    state, work = c.upload(state0, "state"), c.buffer(16, "work")
+    params = frame_params(k, cam, d["sigma"], BG, **sizes(d["model"], P))
+    got_p = np.zeros((P, NSTAT), np.float32)
+    for i, (lo, hi, length) in enumerate(windows):
+        partials = c.buffer(4 * NSTAT * length, "partials")
+        run(c, lambda enc: k(enc, params, bufs["ranges"], bufs["pair_tris"], bufs["tris"], bufs["v_out"], state,
+                             partials, work, tx, ty, max_range, window=(lo, hi), clear=i == 0))
+        part = c.read(partials, np.float32, NSTAT * length).reshape(length, NSTAT)
+        starts = d["ranges"][:, 0]
+        for t0, t1 in d["ranges"][(starts >= lo) & (starts < hi) & (d["ranges"][:, 1] > starts)]:
+            got_p[t0:t1] = part[t0 - lo:t1 - lo]
+        outside = np.ones(length, bool)      # pairs of later windows' tiles stay zero here
+        for t0, t1 in d["ranges"][(starts >= lo) & (starts < hi)]:
+            outside[t0 - lo:t1 - lo] = False
+        assert not part[outside].any()
+    want_p, want_s, want_w = twin.rasterize_backward(d["tris"], d["ranges"], d["pair_tris"], d["v_out"], st, last,
+                                                     cam.width, cam.height, tx, d["sigma"])
+    np.testing.assert_array_equal(c.read(work, np.uint32, 3), want_w)
+    got_s = c.read(state, np.float32, state0.size).reshape(-1, 4)
+    np.testing.assert_array_equal(got_s[:, 3].view(np.uint32), last)
+    assert_scaled(got_s[:, :3], want_s, 1e-5, "state (T, acc, Z)")
+    assert_scaled(got_p, want_p, 2e-5, "partials")
+
+
+@pytest.mark.parametrize("case", CASES)
 def test_project_backward(renderer, case):
     """The chain rule per triangle, on the statistics of its pairs (the twin's partials summed)."""
     c, d = renderer.ctx, forward_data(renderer, case)

@@ -249,6 +249,63 @@ def test_backward_in_passes_is_identical(renderer, monkeypatch):
         assert np.array_equal(getattr(one, name), getattr(many, name)), name
 
 
+@pytest.mark.parametrize("sigma", [1.0, 0.1])
+def test_backward_in_pair_windows_matches_twin(renderer, sigma):
+    """A view whose pairs outgrow one binding of their statistics goes window by window: with
+    room for a third of the pairs (several windows, tiles straddling their borders), the
+    gradients still match the twin as tightly as in one window, and the single-window path
+    is unchanged, bit for bit."""
+    from tsplus_wgpu.render.backward import BackwardPass, pair_windows
+    bp = BackwardPass(renderer)
+    for seed, model, cam in scenes_for(sigma):
+        vi, vt = cotangents(seed)
+        res = renderer.forward(model, cam, sigma, BG)
+        one = bp.run(res, vi, vt)
+        assert all(np.array_equal(getattr(one, n), getattr(renderer.backward(res, vi, vt), n)) for n in GROUPS)
+        bp.pair_capacity = res.max_tile_pairs + max(1, res.num_pairs // 3)
+        windows = pair_windows(res.num_pairs, res.max_tile_pairs, bp.pair_capacity)
+        assert len(windows) >= 3, (res.num_pairs, res.max_tile_pairs)
+        split = bp.run(res, vi, vt)
+        bp.pair_capacity = None
+        t = rb.backward(model, cam, sigma, vi, vt, BG)
+        for name in GROUPS:
+            assert rel(getattr(split, name), getattr(t, name)) <= 1e-4, (seed, name)
+            assert rel(getattr(split, name), getattr(one, name)) <= 1e-5, (seed, name)
+
+
+def test_backward_in_pair_windows_with_many_triangles(renderer):
+    """The same on a scene of more than 16 triangles, where the pair sort takes two passes
+    and leaves its result in its inputs (so each window must start from fresh pair ids)."""
+    from tsplus_wgpu.render.backward import BackwardPass, pair_windows
+    model, cam = f32_exact(*random_scene(8, 48, 40, sheets=5, points_per_sheet=20, sh_k=4))
+    assert model.num_triangles > 16
+    rng = np.random.default_rng(3)
+    vi, vt = rng.normal(size=(40, 48, 3)), rng.normal(size=(40, 48))
+    res = renderer.forward(model, cam, 0.7, BG)
+    bp = BackwardPass(renderer)
+    one = bp.run(res, vi, vt)
+    bp.pair_capacity = res.max_tile_pairs + res.num_pairs // 4
+    assert len(pair_windows(res.num_pairs, res.max_tile_pairs, bp.pair_capacity)) >= 4
+    split = bp.run(res, vi, vt)
+    for name in GROUPS:
+        assert rel(getattr(split, name), getattr(one, name)) <= 1e-5, name
+
+
+def test_pair_windows_cover_every_tile_once():
+    """Windows start where the last one ended, hold at most the capacity (a tile starting
+    just before a window's end fits), and a tile larger than the room is a clear error."""
+    from tsplus_wgpu.render.backward import pair_windows
+    assert pair_windows(10, 4, 10) == [(0, 10, 10)]
+    assert pair_windows(0, 0, 10) == [(0, 0, 0)]
+    w = pair_windows(1000, 37, 100)
+    assert w[0][0] == 0 and w[-1][1] == 1000
+    assert all(a[1] == b[0] for a, b in zip(w, w[1:]))
+    assert all(length <= 100 and lo + length >= hi for lo, hi, length in w)
+    assert all(min(1000, hi - 1 + 37) <= lo + length for lo, hi, length in w)
+    with pytest.raises(ValueError, match="one 16x16 tile has 100 tile-triangle pairs"):
+        pair_windows(1000, 100, 100)
+
+
 def test_corner_order_cache_follows_topology(renderer):
     """The corner order (sorted by vertex) is kept per topology for host models: the same
     model again, and then another topology with as many vertices and triangles, give

@@ -95,6 +95,8 @@ def test_the_coefficients_docs_memory_quotes():
         slope = _slope("pixel", "height", 2**12, width=2**10, supersample=s) / 2**10
         assert slope == pytest.approx(per_pixel, abs=0.05)
     assert _slope("targets", "height", 2**12, width=2**10, views=1) / 2**10 == 12
+    # past the backward's window of pairs, a pair costs its forward and tile-sort bytes only
+    assert _slope("pair", "pairs", 2**22, pair_window=2**20) == pytest.approx(24.0, abs=0.05)
 
 
 def test_largest_model_is_the_most_that_fits():
@@ -113,3 +115,5 @@ def test_largest_model_is_the_most_that_fits():
 def test_every_buffer_of_the_trainer_is_named_once():
     names = [name for _, name, _ in training_buffers(100, 300, 3, 64, 48, 500, supersample=2, views=2)]
     assert len(names) == len(set(names))
+    names = [name for _, name, _ in training_buffers(100, 300, 3, 64, 48, 500, views=2, pair_window=100)]
+    assert len(names) == len(set(names)) and "pair_ids_fresh" in names

@@ -84,7 +84,7 @@ def crop_twin(reference_render, model, camera, sigma, x0, y0, size=CROP):
 def scale_row(renderer, num_vertices, width, height, sh_degree=3, sigma=0.5, repeats=1, reference_render=None):
     """One size: forward + backward ``repeats`` times (medians), memory, pairs, twin on a crop;
     ``refused`` (the one-line reason) where a buffer does not fit the device."""
-    from ..render.backward import backward
+    from ..render.backward import backward, pair_window_capacity, pair_windows
     from ..train.memory import training_bytes
     ctx = renderer.ctx
     model, cam = scale_scene(num_vertices, width, height, sh_degree)
@@ -113,8 +113,10 @@ def scale_row(renderer, num_vertices, width, height, sh_degree=3, sigma=0.5, rep
                pairs=int(res.num_pairs), pairs_per_pixel=res.num_pairs / (width * height),
                device_bytes_peak=ctx.peak_bytes() - before)
     row["forward_ms"], row["backward_ms"] = sum(row["forward_stage_ms"].values()), sum(row["backward_stage_ms"].values())
+    cap = pair_window_capacity(ctx)
+    row["pair_windows"] = len(pair_windows(res.num_pairs, res.max_tile_pairs, cap))
     row["training_bytes_estimate"] = training_bytes(model.num_vertices, m, sh_degree, width, height,
-                                                    int(res.num_pairs))["total"]
+                                                    int(res.num_pairs), pair_window=cap)["total"]
     if reference_render is not None:
         x0, y0 = (width - CROP) // 2, (height - CROP) // 2
         ref, drawn = crop_twin(reference_render, model, cam, sigma, x0, y0)
@@ -156,7 +158,9 @@ def format_row(r):
             f"{100 * r['crop_share_within_f32_model']:.1f} % within 1e-5 + the twin's float32 bound"
             if "crop_max_abs_error" in r else "")
     return (f"{head}  forward {r['forward_ms']:,.1f} ms, backward {r['backward_ms']:,.1f} ms (wall {r['wall_ms']:,.0f}); "
-            f"{r['pairs_per_pixel']:.2f} pairs/px; buffers {_gib(r['device_bytes_peak'])}, training needs about "
+            f"{r['pairs_per_pixel']:.2f} pairs/px"
+            + (f" in {r['pair_windows']} backward windows" if r.get("pair_windows", 1) > 1 else "")
+            + f"; buffers {_gib(r['device_bytes_peak'])}, training needs about "
             f"{_gib(r['training_bytes_estimate'])}{twin}")
 
 

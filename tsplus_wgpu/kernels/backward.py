@@ -22,7 +22,12 @@ class BackwardPrepare(Stage):
 
 class RasterizeBackward(Stage):
     """One workgroup per tile; a tile's pairs in rounds of ``RB`` pairs, ``rounds_per_pass``
-    rounds per dispatch (``ROUNDS_PER_PASS`` of the WGSL: lavapipe's loop budget)."""
+    rounds per dispatch (``ROUNDS_PER_PASS`` of the WGSL: lavapipe's loop budget).
+
+    ``window = (lo, hi)``: only the tiles whose first pair is in ``[lo, hi)`` replay, and pair
+    p's statistics go to ``partials[p - lo]`` (a view whose pairs outgrow one binding is done
+    window by window; :class:`~tsplus_wgpu.render.backward.BackwardPass`). ``partials`` is
+    zeroed first; the ``work`` counters too unless ``clear`` is False (the later windows)."""
 
     stage = "rasterize_backward"
 
@@ -32,13 +37,15 @@ class RasterizeBackward(Stage):
         self.rounds_per_pass = self.const("ROUNDS_PER_PASS")
 
     def __call__(self, enc, params, ranges, pair_tris, tris, v_out, state, partials, work, tiles_x, tiles_y,
-                 max_range, profiler=None):
+                 max_range, profiler=None, window=None, clear=True):
+        lo, hi = (0, 2**32 - 1) if window is None else (int(window[0]), int(window[1]))
         enc.clear_buffer(partials)
-        enc.clear_buffer(work)
+        if clear:
+            enc.clear_buffer(work)
         rounds = (int(max_range) + self.pairs_per_round - 1) // self.pairs_per_round
         step = self.rounds_per_pass
         for r0 in range(0, max(rounds, 1), step):
-            pp = self.uniform("PassParams", round_begin=r0, round_end=r0 + step)
+            pp = self.uniform("PassParams", round_begin=r0, round_end=r0 + step, pair_lo=lo, pair_hi=hi)
             self.dispatch(enc, (tiles_x, tiles_y, 1),
                           dict(params=params, pp=pp, ranges=ranges, pair_tris=pair_tris, tris=tris, v_out=v_out,
                                state=state, partials=partials, work=work), profiler)

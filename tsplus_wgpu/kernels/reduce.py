@@ -46,7 +46,8 @@ class SegmentSum:
     ``shaders/common/segment.wgsl``): ``out[key] = sum of the values of the elements with
     that key``, in a fixed order, for sorted ``keys [n]``; element i's value is the
     ``width`` vec4s at ``vals[index[i] * width:]``. ``out`` (``[keys, width]`` vec4) is
-    zeroed first, so keys without elements get zero."""
+    zeroed first, so keys without elements get zero; with ``clear=False`` the sums are added
+    to what ``out`` holds (``out[key] += ...``, the sum of several batches of elements)."""
 
     def __init__(self, ctx, scratch, name):
         self.ctx = ctx
@@ -56,9 +57,10 @@ class SegmentSum:
         self.down = SegmentDown(ctx)
         self.chunk = self.up.const("CHUNK")    # elements per chunk and level
 
-    def record(self, enc, keys, index, vals, n, width, out, profiler=None, label=None):
+    def record(self, enc, keys, index, vals, n, width, out, profiler=None, label=None, clear=True):
         assert width in (1, 2, 5)
-        enc.clear_buffer(out)
+        if clear:
+            enc.clear_buffer(out)
         if n == 0:
             return
         levels = [(keys, vals, int(n))]

@@ -10,6 +10,10 @@ Stages, each a ``shaders/<group>/<kernel>.wgsl`` with a class of the same name i
 2. pair reduce: the pairs sorted by triangle with the stable :class:`RadixSort` (so each
    triangle's pairs come in tile order), then :class:`SegmentSum` (``segment_up`` /
    ``segment_down``) of their statistics per triangle.
+
+   Steps 1 (the replay) and 2 go window by window of pairs (:func:`pair_windows`) when a
+   view has more pairs than one binding of their statistics holds (80 bytes a pair: 1.68 M
+   pairs in 128 MiB); each window's sums are added to the triangles' totals.
 3. ``project_backward`` (per triangle): exact chain rule to its three corners.
 4. corner -> vertex: the triangle index buffer sorted by vertex with the stable
    :class:`RadixSort` (values: corner indices), so each vertex's corners come in order;
@@ -38,6 +42,33 @@ from ..kernels.sort import RadixSort
 from ..types import Grads, TriangleModel, check_cotangents
 
 
+def pair_windows(num_pairs, max_tile_pairs, capacity):
+    """The windows of pairs the backward replays one after the other: ``[(lo, hi, length)]``.
+
+    The tiles whose first pair is in ``[lo, hi)`` replay in a window; their statistics fill
+    pairs ``[lo, lo + length)`` (a tile that starts before ``hi`` may end after it), at most
+    ``capacity`` of them. One window ``(0, P, P)`` when all ``P`` pairs fit."""
+    P, big, cap = int(num_pairs), int(max_tile_pairs), int(capacity)
+    if P <= cap:
+        return [(0, P, P)]
+    step = cap - big
+    if step < 1:
+        raise ValueError(f"backward pair statistics: one 16x16 tile has {big:,} tile-triangle pairs, more than one "
+                         f"storage binding holds ({cap:,}); use fewer triangles or a smaller image")
+    out = []
+    for lo in range(0, P, step):
+        hi = min(lo + step, P)
+        out.append((lo, hi, min(P, hi + big) - lo))
+    return out
+
+
+def pair_window_capacity(ctx):
+    """The most pairs one window of the backward holds on ``ctx``: their statistics (``NSTAT``
+    floats each) in one storage binding and one buffer."""
+    lim = ctx.limits
+    return min(int(lim["max-storage-buffer-binding-size"]), int(lim["max-buffer-size"])) // (4 * NSTAT)
+
+
 class BackwardPass:
     """The stages of the backward pass for one :class:`Renderer` (pipelines compiled once)."""
 
@@ -54,6 +85,13 @@ class BackwardPass:
         self.vertex = VertexBackward(c)
         self.corner_sort = RadixSort(c, renderer.scratch, "corner_sort")
         self._corner_cache = None   # (topology key, sorted corner keys, corner ids)
+        #: the most pairs whose statistics one window holds (None: as many as one binding of
+        #: the device holds; tests set fewer to exercise the windows)
+        self.pair_capacity = None
+
+    def window_capacity(self):
+        """Pairs per window (:func:`pair_window_capacity`, or the tests' ``pair_capacity``)."""
+        return pair_window_capacity(self.ctx) if self.pair_capacity is None else int(self.pair_capacity)
 
     def _corner_order(self, enc, model, triangles, m, n, profiler):
         """The corners sorted by vertex (stable): (vertex keys, corner ids) buffers.
@@ -132,10 +170,10 @@ class BackwardPass:
         return v_out
 
     def _check_sizes(self, result):
-        model, P = result.model, result.num_pairs
+        model = result.model
         m, n, k = model.num_triangles, model.num_vertices, model.sh_size
-        for name, nbytes in (("backward pair statistics", 4 * NSTAT * P),
-                             ("backward triangle statistics", 4 * NSTAT * m),
+        pair_windows(result.num_pairs, result.max_tile_pairs, self.window_capacity())   # a tile over a window
+        for name, nbytes in (("backward triangle statistics", 4 * NSTAT * m),
                              ("backward corner gradients", 32 * 3 * m), ("v_sh", 12 * n * k)):
             self.ctx.check_size(name, nbytes)
 
@@ -161,30 +199,39 @@ class BackwardPass:
         b = result.buffers
         dev = result.model_buffers if getattr(result, "model_buffers", None) is not None else r.upload_model(model)
         params = r.frame_params(model, cam, result.sigma, np.asarray(result.background), result.near, P)
-        pkeys = c.buffer(4 * P, "pair_keys")
-        pvals = c.upload(np.arange(P, dtype=np.uint32), "pair_ids")
+        # the longest tile list sizes the passes of rasterize_backward and the windows; the
+        # forward already read it back, so no second readback here
+        max_range = int(result.max_tile_pairs)
+        windows = pair_windows(P, max_range, self.window_capacity())
+        span = max(length for _, _, length in windows)
+        pkeys = c.buffer(4 * span, "pair_keys")
+        pvals = c.upload(np.arange(span, dtype=np.uint32), "pair_ids")
+        # the sort may permute its inputs in place: later windows start from a fresh copy
+        ids = c.upload(np.arange(span, dtype=np.uint32), "pair_ids_fresh") if len(windows) > 1 else None
         buf = dict(v_out=v_out if isinstance(v_out, wgpu.GPUBuffer) else c.upload(v_out, "v_out"),
-                   partials=c.buffer(4 * NSTAT * P, "partials"),
+                   partials=c.buffer(4 * NSTAT * span, "partials"),
                    tri_stats=c.buffer(4 * NSTAT * m, "tri_stats"), vertex_sums=c.buffer(32 * n, "vertex_sums"),
                    corner_grads=c.buffer(32 * 3 * m, "corner_grads"), state=c.buffer(16 * h * w, "backward_state"),
                    work=c.buffer(16, "backward_work"))
-        # the longest tile list sizes the passes of rasterize_backward; the forward already
-        # read it back, so no second readback here
-        max_range = int(result.max_tile_pairs)
         prof = rec.profiler
         rec.start()
         self.prepare(rec.encoder, params, b["image"], b["final_t"], b["n_contrib"], buf["v_out"], buf["state"],
                      h * w, prof)
-        self.raster(rec.encoder, params, b["ranges"], b["pair_tris"], b["tris"], buf["v_out"], buf["state"],
-                    buf["partials"], buf["work"], tx, ty, max_range, prof)
-        rec.submit("rasterize_backward")
-        # each triangle's pairs together, in tile order (stable sort by triangle), then summed
-        rec.encoder.copy_buffer_to_buffer(b["pair_tris"], 0, pkeys, 0, 4 * P)
         tbits = max(1, int(m - 1).bit_length())
-        pk, pv = self.pair_sort.record(rec.encoder, pkeys, pvals, P, tbits, prof)
-        self.pair_sum.record(rec.encoder, pk, pv, buf["partials"], P, NSTAT // 4, buf["tri_stats"], prof,
-                             "pair_reduce")
-        rec.submit("pair_reduce")
+        for i, (lo, hi, length) in enumerate(windows):
+            self.raster(rec.encoder, params, b["ranges"], b["pair_tris"], b["tris"], buf["v_out"], buf["state"],
+                        buf["partials"], buf["work"], tx, ty, max_range, prof,
+                        window=None if len(windows) == 1 else (lo, hi), clear=i == 0)
+            rec.submit("rasterize_backward")
+            # each triangle's pairs together, in tile order (stable sort by triangle), then summed
+            # (added to the earlier windows' sums)
+            rec.encoder.copy_buffer_to_buffer(b["pair_tris"], 4 * lo, pkeys, 0, 4 * length)
+            if i > 0:
+                rec.encoder.copy_buffer_to_buffer(ids, 0, pvals, 0, 4 * length)
+            pk, pv = self.pair_sort.record(rec.encoder, pkeys, pvals, length, tbits, prof)
+            self.pair_sum.record(rec.encoder, pk, pv, buf["partials"], length, NSTAT // 4, buf["tri_stats"], prof,
+                                 "pair_reduce", clear=i == 0)
+            rec.submit("pair_reduce")
         self.project(rec.encoder, params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"],
                      b["tris"], b["pixel_rects"], buf["tri_stats"], buf["corner_grads"], m, prof)
         rec.submit("project_backward")

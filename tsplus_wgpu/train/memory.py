@@ -18,7 +18,8 @@ backward pass, when the forward's buffers are still held) with the size the code
   per-pixel counts, the backward's state and its vec4 input; tile counts and ranges; at ``W H``:
   the loss's (``ImageLoss``: 112 bytes a pixel, and ``v_image``) and the downsampled image.
 * **per tile-triangle pair**: keys and values, the tile sort's and the pair sort's scratch, the
-  backward's per-pair statistics (``NSTAT`` floats) and their segmented sum; and per
+  backward's per-pair statistics (``NSTAT`` floats) and their segmented sum (these last, with
+  the pair sort, for at most one window of pairs at a time: ``pair_window``); and per
   (triangle, tile row) item, which the binning sizes by its own count (``rows``; at most one
   item per pair, so ``pairs`` bounds it).
 * **targets**: the training images, uploaded once per view and kept (``views`` of them).
@@ -96,7 +97,7 @@ def _scan_scratch(lengths, c):
 
 
 def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pairs, supersample=1, rows=None,
-                     views=1):
+                     views=1, pair_window=None):
     """Every buffer alive at the peak of one training step: ``[(family, name, bytes)]``.
 
     Args:
@@ -108,6 +109,9 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
         supersample: s, the per-axis supersampling of the step (``Trainer.fit_supersample``).
         rows: (triangle, tile row) items of the forward (default ``pairs``, which bounds them).
         views: training images on the device (the trainer keeps each view's once it was used).
+        pair_window: the most pairs the backward takes at once (its windows,
+            :func:`~tsplus_wgpu.render.backward.pair_windows`: one storage binding of their
+            statistics); None: all of them at once.
     """
     c = _consts()
     n, m, k = int(num_vertices), int(num_triangles), (int(sh_degree) + 1) ** 2
@@ -116,6 +120,7 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
     tiles = _ceil(int(width) * s, c["tile"]) * _ceil(int(height) * s, c["tile"])
     P = int(pairs)
     R = P if rows is None else int(rows)
+    Pw = P if pair_window is None else min(P, int(pair_window))      # the backward's window
     V, T, X, Q, O = "vertex", "triangle", "pixel", "pair", "other"
     out = [(V, name, _buf(b)) for name, b in (
         # Trainer.set_state: parameters and Adam moments (positions double as the render's)
@@ -145,10 +150,12 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
         out.append((X, "train_image_down", _scratch(12 * p)))
     out += [(Q, name, _buf(b)) for name, b in (
         ("counts", 4 * R), ("item_rank", 4 * R), ("pair_tiles", 4 * P), ("pair_tris", 4 * P),   # forward
-        ("pair_keys", 4 * P), ("pair_ids", 4 * P), ("partials", 4 * c["nstat"] * P))]          # backward
+        ("pair_keys", 4 * Pw), ("pair_ids", 4 * Pw), ("partials", 4 * c["nstat"] * Pw))]      # backward
+    if Pw < P:
+        out.append((Q, "pair_ids_fresh", _buf(4 * Pw)))
     tile, scan_tile = _sort_scratch("tile_sort", P, max(1, (tiles - 1).bit_length()), c)
-    pair, scan_pair = _sort_scratch("pair_sort", P, max(1, (m - 1).bit_length()), c)
-    out += [(Q, name, b) for name, b in tile + pair + _segment_scratch("pair_sum", P, c["nstat"] // 4, c)]
+    pair, scan_pair = _sort_scratch("pair_sort", Pw, max(1, (m - 1).bit_length()), c)
+    out += [(Q, name, b) for name, b in tile + pair + _segment_scratch("pair_sum", Pw, c["nstat"] // 4, c)]
     out += [(O, name, b) for name, b in _scan_scratch([m, R] + scan_depth + scan_tile + scan_pair, c)]
     out += [("targets", f"target_{i}", _buf(12 * p)) for i in range(int(views))]
     out += [(O, name, b) for name, b in (("max_tile_pairs", 16), ("work", 16), ("backward_work", 16),
@@ -157,12 +164,12 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
 
 
 def training_bytes(num_vertices, num_triangles, sh_degree, width, height, pairs, supersample=1, rows=None,
-                   views=1):
+                   views=1, pair_window=None):
     """Device bytes of one training step at its peak, by buffer family (:data:`FAMILIES`) and
     ``total``. Arguments: :func:`training_buffers`."""
     out = dict.fromkeys(FAMILIES, 0)
     for family, _, nbytes in training_buffers(num_vertices, num_triangles, sh_degree, width, height, pairs,
-                                              supersample, rows, views):
+                                              supersample, rows, views, pair_window):
         out[family] += nbytes
     out["total"] = sum(out[f] for f in FAMILIES)
     return out
@@ -174,12 +181,14 @@ def largest_model(memory_bytes, sh_degree, width, height, pairs_per_pixel, trian
     ``triangles_per_vertex`` triangles a vertex whose views give ``pairs_per_pixel`` tile-triangle
     pairs per rendered pixel (at ``supersample``; the arguments of :func:`training_buffers`).
     With ``max_binding`` (bytes) every single buffer must also fit one storage binding (WebGPU's
-    default: 128 MiB). Returns 0 when not even one vertex fits."""
+    default: 128 MiB), and the backward takes the pairs in windows of one binding. Returns 0
+    when not even one vertex fits."""
     pairs = int(round(float(pairs_per_pixel) * width * height * supersample ** 2))
+    window = None if max_binding is None else int(max_binding) // (4 * _consts()["nstat"])
 
     def fits(n):
         bufs = training_buffers(n, int(round(n * float(triangles_per_vertex))), sh_degree, width, height, pairs,
-                                supersample, views=views)
+                                supersample, views=views, pair_window=window)
         if max_binding is not None and max(b for _, _, b in bufs) > max_binding:
             return False
         return sum(b for _, _, b in bufs) <= memory_bytes
