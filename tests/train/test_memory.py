@@ -64,7 +64,10 @@ def test_training_step_matches_the_estimate(renderer, monkeypatch):
             view = t.view_of(it)
             seen.add(view)
             cam = t.scene.cameras[view]
-            pairs, rows, rendered = views[-1]
+            # the forward's and backward's buffers are the renderer's scratch in training, kept
+            # at the largest view's size so far
+            pairs, rows = max(v[0] for v in views), max(v[1] for v in views)
+            rendered = views[-1][2]
             assert not t.is_topology_step(it)
             est = training_bytes(t.n, t.m, t.config.sh_degree, cam.width, cam.height, pairs,
                                  supersample=rendered // cam.width, rows=rows, views=len(seen))
@@ -89,8 +92,8 @@ def test_the_coefficients_docs_memory_quotes():
     assert _slope("vertex", "num_vertices", 2**20) == 136 + 72 * 16          # SH degree 3: K = 16
     assert _slope("vertex", "num_vertices", 2**20, sh_degree=0) == 136 + 72
     assert _slope("triangle", "num_triangles", 3 * 2**20) == pytest.approx(402.7, abs=0.05)
-    assert _slope("pair", "pairs", 2**22) == pytest.approx(121.4, abs=0.05)
-    assert _slope("pair", "pairs", 2**22, rows=0) == pytest.approx(113.4, abs=0.05)
+    assert _slope("pair", "pairs", 2**22) == pytest.approx(125.4, abs=0.05)
+    assert _slope("pair", "pairs", 2**22, rows=0) == pytest.approx(117.4, abs=0.05)
     for s, per_pixel in ((1, 56.05 + 124.0), (2, 4 * 56.05 + 136.0), (4, 16 * 56.05 + 136.0)):
         slope = _slope("pixel", "height", 2**12, width=2**10, supersample=s) / 2**10
         assert slope == pytest.approx(per_pixel, abs=0.05)

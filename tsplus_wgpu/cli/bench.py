@@ -274,11 +274,48 @@ def run_bench_scale(args):
     return 0
 
 
+# ---------------------------------------------------------------------------------------- tsplus bench-step
+
+def add_step_parser(sub):
+    """``tsplus bench-step``: the host's cost of a training step (:mod:`tsplus_wgpu.bench.step`)."""
+    p = sub.add_parser("bench-step", help="what a training step costs the host: ms per step where the device has "
+                                          "almost nothing to do, with the host caching on and off",
+                       description="Trains the procedural tiny scene from a few points, so the device has almost "
+                                   "nothing to do and a step's time is the host's (recording about 80 dispatches: "
+                                   "what bounds training on a GPU). Blocks of steps with the host caching on and "
+                                   "off in turn (uniform buffers by content, bind groups by their buffers, the "
+                                   "step's forward and backward on scratch buffers, one submit for the backward; "
+                                   "off: all of it anew, as before 2026-11-27); the medians, their ratio, what a "
+                                   "step made, and whether both modes train to bit-identical parameters.")
+    p.add_argument("--points", type=int, default=60, help="initial points of the tiny scene (default 60)")
+    p.add_argument("--steps", type=int, default=20, help="steps per block (default 20)")
+    p.add_argument("--blocks", type=int, default=8, help="blocks per mode (default 8)")
+    p.add_argument("--json", default=None, help="write the result here")
+    add_adapter_arg(p)
+    return p
+
+
+def run_bench_step(args):
+    """``tsplus bench-step``: the report, and JSON with ``--json``."""
+    from ..bench.step import format_step, step_report
+    from ..render.renderer import Renderer
+    if args.points < 4 or args.steps < 1 or args.blocks < 1:
+        raise ValueError("--points: at least 4; --steps, --blocks: at least 1")
+    renderer = Renderer(args.adapter)
+    print(f"adapter: {renderer.ctx.name}", flush=True)
+    result = step_report(renderer, args.points, args.steps, args.blocks, log=lambda line: print(line, flush=True))
+    print()
+    print(format_step(result))
+    if args.json:
+        _write_json(args.json, result, default=float)
+    return 0
+
+
 # ---------------------------------------------------------------------------------------- table
 
 #: command name -> ``run(args) -> exit code``
 COMMANDS = {"bench": run_bench, "bench-raster": run_bench_raster, "bench-backward": run_bench_backward,
-            "bench-scale": run_bench_scale}
+            "bench-scale": run_bench_scale, "bench-step": run_bench_step}
 
 
 def add_parsers(sub):
@@ -287,6 +324,7 @@ def add_parsers(sub):
     add_bench_parser(sub)
     add_backward_parser(sub)
     add_scale_parser(sub)
+    add_step_parser(sub)
 
 
 def run(args):
@@ -295,4 +333,5 @@ def run(args):
 
 
 __all__ = ["COMMANDS", "add_parsers", "run", "add_bench_parser", "add_raster_parser", "add_backward_parser",
-           "add_scale_parser", "run_bench", "run_bench_raster", "run_bench_backward", "run_bench_scale", "command_line", "check_bench_args"]
+           "add_scale_parser", "add_step_parser", "run_bench", "run_bench_raster", "run_bench_backward",
+           "run_bench_scale", "run_bench_step", "command_line", "check_bench_args"]

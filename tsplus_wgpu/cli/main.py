@@ -49,6 +49,7 @@ COMMANDS = {
     "select": ("select", "add_parser"),
     "bench-backward": ("bench", "add_backward_parser"),
     "bench-scale": ("bench", "add_scale_parser"),
+    "bench-step": ("bench", "add_step_parser"),
 }
 
 

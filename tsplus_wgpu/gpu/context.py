@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from .bindings import BindGroupCache, UniformCache
 from .wgsl import load_wgsl
 
 # lavapipe prints a warning on every start when this is unset.
@@ -196,6 +197,13 @@ class GpuContext:
         self._pipelines = {}
         self._sources = {}
         self._bytes = [0, 0]      # [live, peak] bytes of the buffers made here (_tally)
+        # the host's work kept between dispatches: uniform buffers by content, bind groups by
+        # their buffers (gpu/bindings.py), the training step's forward and backward buffers,
+        # one submit for the backward's stages. TSPLUS_HOST_CACHING=0 (or host_caching =
+        # False) does all of it anew every time, as before 2026-11-27 (tsplus bench-step)
+        self.host_caching = os.environ.get("TSPLUS_HOST_CACHING", "1") != "0"
+        self._uniforms = UniformCache(self._make_uniform)
+        self._bind_groups = BindGroupCache(self.device)
 
     @property
     def name(self):
@@ -236,11 +244,32 @@ class GpuContext:
         return self._tally(self.device.create_buffer_with_data(data=arr, usage=usage, label=label))
 
     def uniform(self, struct_value, label=""):
-        return self._tally(self.device.create_buffer_with_data(
-            data=struct_value.tobytes(), usage=wgpu.BufferUsage.UNIFORM | wgpu.BufferUsage.COPY_DST, label=label))
+        """A uniform buffer holding ``struct_value``'s bytes. It must never be written: buffers
+        of equal content are shared (:class:`~.bindings.UniformCache`; not in the tally)."""
+        data = struct_value.tobytes()
+        if not self.host_caching:
+            return self._tally(self._make_uniform(data, label))
+        return self._uniforms.get(data, label)
 
-    # A tally of device memory: every buffer made by buffer(), upload() or uniform() counts
-    # from its creation until Python drops it (wgpu releases it then). Buffers made on
+    def _make_uniform(self, data, label):
+        return self.device.create_buffer_with_data(data=data, usage=wgpu.BufferUsage.UNIFORM, label=label)
+
+    def binding_counts(self):
+        """``(bind groups made, uniform buffers made)`` through the caches so far (benchmarks)."""
+        return self._bind_groups.made, self._uniforms.made
+
+    def bind_group(self, layout, entries):
+        """The bind group of ``layout`` binding ``entries`` ``[(binding, buffer, offset, size)]``,
+        made once while those buffers live (:class:`~.bindings.BindGroupCache`)."""
+        if self.host_caching:
+            return self._bind_groups.get(layout, entries)
+        return self.device.create_bind_group(layout=layout, entries=[
+            {"binding": slot, "resource": {"buffer": buf, "offset": int(off), "size": int(size)}}
+            for slot, buf, off, size in entries])
+
+    # A tally of device memory: every buffer made by buffer() or upload() (and uniform() with
+    # the host caching off) counts from its creation until Python drops it (wgpu releases it
+    # then). The cached uniform buffers (at most 1024 of a few hundred bytes) and buffers made on
     # ``self.device`` directly (the viewer's and MeshRenderer's, timestamp queries) are not
     # counted. A weakref finalizer per buffer: a few microseconds each. docs/memory.md.
     def _tally(self, buf):
@@ -251,7 +280,7 @@ class GpuContext:
         return buf
 
     def live_bytes(self):
-        """Bytes of this context's buffers (buffer, upload, uniform) still alive now."""
+        """Bytes of this context's buffers (buffer, upload) still alive now."""
         return self._bytes[0]
 
     def peak_bytes(self):

@@ -59,9 +59,8 @@ class Stage:
         got = set(buffers)
         if want != got:
             raise KeyError(f"{self.stage}.wgsl bindings: missing {sorted(want - got)}, unexpected {sorted(got - want)}")
-        entries = [{"binding": self.src.bindings[n].slot, "resource": {"buffer": buf, "offset": 0, "size": buf.size}}
-                   for n, buf in buffers.items()]
-        return self.ctx.device.create_bind_group(layout=self.layout, entries=entries)
+        return self.ctx.bind_group(self.layout, [(self.src.bindings[n].slot, buf, 0, buf.size)
+                                                 for n, buf in buffers.items()])
 
     def dispatch(self, encoder, groups, buffers, profiler=None, label=None):
         """Record one dispatch; ``groups`` is an int (split into a 2-D grid) or an (x, y, z) tuple."""
@@ -83,11 +82,17 @@ class Scratch:
         self.ctx = ctx
         self.buffers = {}
 
-    def get(self, name, nbytes):
+    def get(self, name, nbytes, grow=1.5):
+        """Buffer ``name`` of at least ``nbytes``. One that is too small is dropped first (so
+        the two never live at once, unless the caller still holds the old one) and made again
+        ``grow`` times its old size where that is more than asked (fewer regrowths)."""
         nbytes = max(16, int(nbytes))
         buf = self.buffers.get(name)
         if buf is None or buf.size < nbytes:
-            cap = nbytes if buf is None else max(nbytes, min(buf.size * 3 // 2, self.ctx.limits["max-storage-buffer-binding-size"]))
+            old = 0 if buf is None else int(buf.size)
+            self.buffers.pop(name, None)
+            buf = None
+            cap = max(nbytes, min(int(old * grow), self.ctx.limits["max-storage-buffer-binding-size"]))
             cap = (cap + 255) // 256 * 256
             buf = self.ctx.buffer(cap, label=name)
             self.buffers[name] = buf

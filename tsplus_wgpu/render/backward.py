@@ -85,6 +85,7 @@ class BackwardPass:
         self.vertex = VertexBackward(c)
         self.corner_sort = RadixSort(c, renderer.scratch, "corner_sort")
         self._corner_cache = None   # (topology key, sorted corner keys, corner ids)
+        self._ids = None            # (buffer of 0, 1, ..., its count): _pair_ids
         #: the most pairs whose statistics one window holds (None: as many as one binding of
         #: the device holds; tests set fewer to exercise the windows)
         self.pair_capacity = None
@@ -92,6 +93,13 @@ class BackwardPass:
     def window_capacity(self):
         """Pairs per window (:func:`pair_window_capacity`, or the tests' ``pair_capacity``)."""
         return pair_window_capacity(self.ctx) if self.pair_capacity is None else int(self.pair_capacity)
+
+    def _pair_ids(self, count):
+        """A buffer holding 0, 1, ..., at least ``count`` of them (kept; grown when short)."""
+        if self._ids is None or self._ids[1] < count:
+            size = max(int(count), 3 * self._ids[1] // 2 if self._ids else 0)
+            self._ids = (self.ctx.upload(np.arange(size, dtype=np.uint32), "pair_ids_fresh"), size)
+        return self._ids[0]
 
     def _corner_order(self, enc, model, triangles, m, n, profiler):
         """The corners sorted by vertex (stable): (vertex keys, corner ids) buffers.
@@ -204,16 +212,20 @@ class BackwardPass:
         max_range = int(result.max_tile_pairs)
         windows = pair_windows(P, max_range, self.window_capacity())
         span = max(length for _, _, length in windows)
-        pkeys = c.buffer(4 * span, "pair_keys")
-        pvals = c.upload(np.arange(span, dtype=np.uint32), "pair_ids")
-        # the sort may permute its inputs in place: later windows start from a fresh copy
-        ids = c.upload(np.arange(span, dtype=np.uint32), "pair_ids_fresh") if len(windows) > 1 else None
+        alloc = r.buffer_source(result.reused, "backward_")
+        pkeys, pvals = alloc(4 * span, "pair_keys"), alloc(4 * span, "pair_ids")
+        # the pair ids 0, 1, ...: the sort may permute its inputs in place, so every window
+        # starts from a copy
+        ids = self._pair_ids(span) if result.reused else c.upload(np.arange(span, dtype=np.uint32), "pair_ids_fresh")
         buf = dict(v_out=v_out if isinstance(v_out, wgpu.GPUBuffer) else c.upload(v_out, "v_out"),
-                   partials=c.buffer(4 * NSTAT * span, "partials"),
-                   tri_stats=c.buffer(4 * NSTAT * m, "tri_stats"), vertex_sums=c.buffer(32 * n, "vertex_sums"),
-                   corner_grads=c.buffer(32 * 3 * m, "corner_grads"), state=c.buffer(16 * h * w, "backward_state"),
-                   work=c.buffer(16, "backward_work"))
+                   partials=alloc(4 * NSTAT * span, "partials"),
+                   tri_stats=alloc(4 * NSTAT * m, "tri_stats"), vertex_sums=alloc(32 * n, "vertex_sums"),
+                   corner_grads=alloc(32 * 3 * m, "corner_grads"), state=alloc(16 * h * w, "backward_state"),
+                   work=alloc(16, "backward_work"))
         prof = rec.profiler
+        # one submit for all stages (each its own only when timed on the host); without the
+        # host caching, one per stage as before it
+        flush = rec.flush if c.host_caching else rec.submit
         rec.start()
         self.prepare(rec.encoder, params, b["image"], b["final_t"], b["n_contrib"], buf["v_out"], buf["state"],
                      h * w, prof)
@@ -222,23 +234,22 @@ class BackwardPass:
             self.raster(rec.encoder, params, b["ranges"], b["pair_tris"], b["tris"], buf["v_out"], buf["state"],
                         buf["partials"], buf["work"], tx, ty, max_range, prof,
                         window=None if len(windows) == 1 else (lo, hi), clear=i == 0)
-            rec.submit("rasterize_backward")
+            flush("rasterize_backward")
             # each triangle's pairs together, in tile order (stable sort by triangle), then summed
             # (added to the earlier windows' sums)
             rec.encoder.copy_buffer_to_buffer(b["pair_tris"], 4 * lo, pkeys, 0, 4 * length)
-            if i > 0:
-                rec.encoder.copy_buffer_to_buffer(ids, 0, pvals, 0, 4 * length)
+            rec.encoder.copy_buffer_to_buffer(ids, 0, pvals, 0, 4 * length)
             pk, pv = self.pair_sort.record(rec.encoder, pkeys, pvals, length, tbits, prof)
             self.pair_sum.record(rec.encoder, pk, pv, buf["partials"], length, NSTAT // 4, buf["tri_stats"], prof,
                                  "pair_reduce", clear=i == 0)
-            rec.submit("pair_reduce")
+            flush("pair_reduce")
         self.project(rec.encoder, params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"],
                      b["tris"], b["pixel_rects"], buf["tri_stats"], buf["corner_grads"], m, prof)
-        rec.submit("project_backward")
+        flush("project_backward")
         skeys, svals = self._corner_order(rec.encoder, model, dev["triangles"], m, n, prof)
         self.corner_sum.record(rec.encoder, skeys, svals, buf["corner_grads"], 3 * m, 2, buf["vertex_sums"], prof,
                                "corner_sum")
-        rec.submit("corner_sum")
+        flush("corner_sum")
         self.vertex(rec.encoder, params, dev["positions"], dev["sh"], buf["vertex_sums"], out["v_positions"],
                     out["v_sh"], out["v_opacity"], n, prof)
         rec.submit("vertex_backward")

@@ -29,7 +29,7 @@ class ForwardResult:
     the numpy views below are read back lazily, once each."""
 
     def __init__(self, renderer, camera, model, sigma, background, near, buffers, num_pairs, timings,
-                 model_buffers=None, max_tile_pairs=0):
+                 model_buffers=None, max_tile_pairs=0, reused=False):
         self.renderer = renderer
         self.camera = camera
         self.model = model
@@ -44,6 +44,9 @@ class ForwardResult:
         self.model_buffers = model_buffers
         #: the longest tile list (sizes the blend's passes, forward and backward)
         self.max_tile_pairs = max_tile_pairs
+        #: the buffers are the renderer's scratch (``forward(reuse=True)``), and so are the
+        #: backward's: the next such forward or backward overwrites them
+        self.reused = reused
 
     def _read(self, name, dtype, count):
         key = (name, np.dtype(dtype).str)
@@ -191,7 +194,7 @@ class Renderer:
         )
 
     def forward(self, model, camera, sigma, background=(0.0, 0.0, 0.0), near=0.01, profile=False,
-                triangle_ids=False):
+                triangle_ids=False, reuse=False):
         """Render ``model`` seen by ``camera``.
 
         Args:
@@ -204,6 +207,9 @@ class Renderer:
             profile: time each stage (timestamp queries where supported, else host timing).
             triangle_ids: also run the ID pass (``rasterize_forward.wgsl`` with ``TRIANGLE_IDS``)
                 over the same sorted tile lists; off by default, so the normal forward pays nothing for it.
+            reuse: take the result's buffers from this renderer's scratch (no new buffers, and
+                the kernels' bind groups are made once): the next forward with ``reuse``
+                overwrites them, so the result must not be used after it (the training step).
 
         Returns:
             :class:`ForwardResult` with ``image [H, W, 3]``, ``transmittance [H, W]``,
@@ -214,18 +220,26 @@ class Renderer:
         # Timing: timestamp queries per pass where supported; otherwise each stage is
         # submitted on its own and timed on the host.
         rec = Recorder(self.ctx, profile)
+        alloc = self.buffer_source(reuse, "forward_")
         dev = model.buffers if isinstance(model, DeviceModel) else self.upload_model(model)
         frame = functools.partial(self.frame_params, model, camera, sigma, bg, near)
-        b, rows_total = self._project(rec, frame(0, 0), dev, model, camera)
+        b, rows_total = self._project(rec, frame(0, 0), dev, model, camera, alloc)
         num_rows = _read_u32(self.ctx, rows_total)         # sizes the (triangle, tile row) items
-        b, num_pairs, max_tile_pairs = self._count_pairs(rec, frame(0, num_rows), b, model, camera, num_rows)
+        b, num_pairs, max_tile_pairs = self._count_pairs(rec, frame(0, num_rows), b, model, camera, num_rows, alloc)
         params = frame(num_pairs, num_rows)
-        self._sort_and_blend(rec, params, b, model, camera, num_rows, num_pairs, max_tile_pairs, triangle_ids)
+        self._sort_and_blend(rec, params, b, model, camera, num_rows, num_pairs, max_tile_pairs, triangle_ids, alloc)
         if triangle_ids:
             self._triangle_id_pass(rec, params, b, camera, max_tile_pairs)
         times = rec.resolve()
         return ForwardResult(self, camera, model, sigma, tuple(bg), near, b, num_pairs, times, model_buffers=dev,
-                             max_tile_pairs=max_tile_pairs)
+                             max_tile_pairs=max_tile_pairs, reused=bool(reuse))
+
+    def buffer_source(self, reuse, prefix):
+        """``(bytes, name) -> buffer``: a new buffer, or with ``reuse`` this renderer's scratch
+        buffer ``prefix + name`` (kept between calls, so the kernels' bind groups are too)."""
+        if reuse:   # exact sizes: they follow the largest view, with no slack on top
+            return lambda nbytes, name: self.scratch.get(prefix + name, nbytes, grow=1.0)
+        return lambda nbytes, name: self.ctx.buffer(nbytes, name)
 
     def _check_forward(self, model, camera, sigma, background, near):
         """The checked ``(camera, sigma, background, near)`` of :meth:`forward`; raises
@@ -252,20 +266,20 @@ class Renderer:
                              f"to {TILE * c.limits['max-compute-workgroups-per-dimension']} px are supported")
         return camera, sigma, bg, near
 
-    def _project(self, rec, params, dev, model, camera):
+    def _project(self, rec, params, dev, model, camera, alloc):
         """Stage 1: colours, projection, depth order, tile rows per triangle. Returns the buffers
         and the one holding the number of (triangle, tile row) items (submitted, to be read)."""
-        c, prof, flush = self.ctx, rec.profiler, rec.flush
+        prof, flush = rec.profiler, rec.flush
         m, n = model.num_triangles, model.num_vertices
         b = dict(
-            colors=c.buffer(16 * n, "colors"),
-            tris=c.buffer(self.tri2d_dtype.itemsize * m, "tris"),
-            pixel_rects=c.buffer(16 * m, "pixel_rects"),
-            depth_keys=c.buffer(4 * m, "depth_keys"),
-            tri_ids=c.buffer(4 * m, "tri_ids"),
-            row_offsets=c.buffer(4 * m, "row_offsets"),
-            tile_counts=c.buffer(4 * self.tiles(camera)[2], "tile_counts"),
-            max_tile_pairs=c.buffer(16, "max_tile_pairs"),
+            colors=alloc(16 * n, "colors"),
+            tris=alloc(self.tri2d_dtype.itemsize * m, "tris"),
+            pixel_rects=alloc(16 * m, "pixel_rects"),
+            depth_keys=alloc(4 * m, "depth_keys"),
+            tri_ids=alloc(4 * m, "tri_ids"),
+            row_offsets=alloc(4 * m, "row_offsets"),
+            tile_counts=alloc(4 * self.tiles(camera)[2], "tile_counts"),
+            max_tile_pairs=alloc(16, "max_tile_pairs"),
         )
         rec.start()
         self.sh_to_color(rec.encoder, params, dev["positions"], dev["sh"], b["colors"], n, prof)
@@ -282,13 +296,13 @@ class Renderer:
         flush("bin_rows", force=True)
         return b, rows_total
 
-    def _count_pairs(self, rec, params, b, model, camera, num_rows):
+    def _count_pairs(self, rec, params, b, model, camera, num_rows, alloc):
         """Stage 2: count the pairs of every item, and per tile. Returns the buffers, the
         number of pairs (sizes the pair buffers) and the longest tile list (blend passes)."""
         c, prof, flush = self.ctx, rec.profiler, rec.flush
         m, ntiles, order = model.num_triangles, self.tiles(camera)[2], b["tri_from_rank"]
-        b["counts"] = c.buffer(4 * num_rows, "counts")
-        b["item_rank"] = c.buffer(4 * num_rows, "item_rank")
+        b["counts"] = alloc(4 * num_rows, "counts")
+        b["item_rank"] = alloc(4 * num_rows, "item_rank")
         self.bin_items(rec.encoder, params, b["pixel_rects"], order, b["row_offsets"], b["item_rank"], m, prof)
         flush("bin_rows")
         self.bin_count(rec.encoder, params, b["tris"], b["pixel_rects"], order, b["row_offsets"], b["item_rank"],
@@ -301,21 +315,22 @@ class Renderer:
         c.check_size("tile-triangle pairs (image size x triangles)", 4 * num_pairs)
         return b, num_pairs, max_tile_pairs
 
-    def _sort_and_blend(self, rec, params, b, model, camera, num_rows, num_pairs, max_tile_pairs, triangle_ids):
+    def _sort_and_blend(self, rec, params, b, model, camera, num_rows, num_pairs, max_tile_pairs, triangle_ids,
+                        alloc):
         """Stage 3: write the pairs, sort them by tile (stable: depth order within a tile),
         tile ranges, blend. Adds the pair and output buffers to ``b``."""
-        c, prof, flush = self.ctx, rec.profiler, rec.flush
+        prof, flush = rec.profiler, rec.flush
         m, order = model.num_triangles, b["tri_from_rank"]
         h, w = camera.height, camera.width
         tx, ty, ntiles = self.tiles(camera)
-        b["pair_tiles"] = c.buffer(4 * num_pairs, "pair_tiles")
-        b["pair_tris"] = c.buffer(4 * num_pairs, "pair_tris")
-        b["ranges"] = c.buffer(8 * ntiles, "ranges")
-        b["image"] = c.buffer(12 * h * w, "image")
-        b["final_t"] = c.buffer(4 * h * w, "final_t")
-        b["n_contrib"] = c.buffer(8 * h * w, "n_contrib")
-        b["max_weight"] = c.buffer(4 * m, "max_weight")
-        b["work"] = c.buffer(16, "work")
+        b["pair_tiles"] = alloc(4 * num_pairs, "pair_tiles")
+        b["pair_tris"] = alloc(4 * num_pairs, "pair_tris")
+        b["ranges"] = alloc(8 * ntiles, "ranges")
+        b["image"] = alloc(12 * h * w, "image")
+        b["final_t"] = alloc(4 * h * w, "final_t")
+        b["n_contrib"] = alloc(8 * h * w, "n_contrib")
+        b["max_weight"] = alloc(4 * m, "max_weight")
+        b["work"] = alloc(16, "work")
         self.bin_emit(rec.encoder, params, b["tris"], b["pixel_rects"], order, b["row_offsets"], b["item_rank"],
                       b["counts"], b["pair_tiles"], b["pair_tris"], num_rows, prof)
         flush("bin_emit")

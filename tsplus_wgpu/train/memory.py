@@ -151,8 +151,7 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
     out += [(Q, name, _buf(b)) for name, b in (
         ("counts", 4 * R), ("item_rank", 4 * R), ("pair_tiles", 4 * P), ("pair_tris", 4 * P),   # forward
         ("pair_keys", 4 * Pw), ("pair_ids", 4 * Pw), ("partials", 4 * c["nstat"] * Pw))]      # backward
-    if Pw < P:
-        out.append((Q, "pair_ids_fresh", _buf(4 * Pw)))
+    out.append((Q, "pair_ids_fresh", _buf(4 * Pw)))      # 0, 1, ...: each window's ids start from a copy
     tile, scan_tile = _sort_scratch("tile_sort", P, max(1, (tiles - 1).bit_length()), c)
     pair, scan_pair = _sort_scratch("pair_sort", Pw, max(1, (m - 1).bit_length()), c)
     out += [(Q, name, b) for name, b in tile + pair + _segment_scratch("pair_sum", Pw, c["nstat"] // 4, c)]

@@ -226,13 +226,15 @@ class Trainer:
             s //= 2
         return s
 
-    def render_supersampled(self, model, camera, sigma, s, enc=None, profiler=None):
+    def render_supersampled(self, model, camera, sigma, s, enc=None, profiler=None, reuse=False):
         """Forward with the s-times camera and, for s > 1, area-downsample on the device.
         Returns ``(forward result, image buffer [H * W * 3] at the camera's resolution)``.
-        ``profiler``: a :class:`~.profile.StepProfiler` that gets the forward's stage times."""
+        ``profiler``: a :class:`~.profile.StepProfiler` that gets the forward's stage times.
+        ``reuse``: the forward's (and then the backward's) buffers are the renderer's scratch,
+        overwritten by the next such call (:meth:`step`)."""
         s = self.fit_supersample(camera, s)
         res = self.renderer.forward(model, supersampled_camera(camera, s), sigma, self.config.background,
-                                    self.config.near, profile=profiler is not None)
+                                    self.config.near, profile=profiler is not None, reuse=reuse)
         if profiler is not None:
             profiler.add_kernels(res.timings)
         if s == 1:
@@ -271,7 +273,8 @@ class Trainer:
         cam = self.scene.cameras[view]
         h, w = cam.height, cam.width
         enc = c.device.create_command_encoder()
-        res, image, ss = self.render_supersampled(self.model, cam, s.sigma(it), s.supersample(it), enc, sp)
+        res, image, ss = self.render_supersampled(self.model, cam, s.sigma(it), s.supersample(it), enc, sp,
+                                                  reuse=c.host_caching)
         scr = self.renderer.scratch
         v_img = scr.get("train_v_image", 12 * h * w)
         v_out = scr.get("train_v_out", 16 * h * w * ss * ss)
