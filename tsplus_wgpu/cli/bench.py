@@ -259,16 +259,22 @@ def run_bench_scale(args):
     """``tsplus bench-scale``: one line per size as it finishes, the table, and JSON with ``--json``."""
     from .. import reference
     from ..bench.scale import format_table, scale_report
-    from ..render.renderer import Renderer
     if args.width < 32 or args.height < 32 or args.repeats < 1:
         raise ValueError("--width/--height: at least 32 (the twin's crop); --repeats: at least 1")
+    return _run_report(args, lambda renderer, log: scale_report(
+        renderer, args.vertices, args.width, args.height, args.sh_degree, args.sigma, args.repeats,
+        reference_render=None if args.no_twin else reference.render, log=log), format_table)
+
+
+def _run_report(args, report, fmt):
+    """A renderer on ``--adapter`` and its name, ``report(renderer, log)`` (lines printed as they
+    come), the result as ``fmt`` writes it, and JSON with ``--json``. Exit code 0."""
+    from ..render.renderer import Renderer
     renderer = Renderer(args.adapter)
     print(f"adapter: {renderer.ctx.name}", flush=True)
-    result = scale_report(renderer, args.vertices, args.width, args.height, args.sh_degree, args.sigma, args.repeats,
-                          reference_render=None if args.no_twin else reference.render,
-                          log=lambda line: print(line, flush=True))
+    result = report(renderer, lambda line: print(line, flush=True))
     print()
-    print(format_table(result))
+    print(fmt(result))
     if args.json:
         _write_json(args.json, result, default=float)
     return 0
@@ -298,17 +304,10 @@ def add_step_parser(sub):
 def run_bench_step(args):
     """``tsplus bench-step``: the report, and JSON with ``--json``."""
     from ..bench.step import format_step, step_report
-    from ..render.renderer import Renderer
     if args.points < 4 or args.steps < 1 or args.blocks < 1:
         raise ValueError("--points: at least 4; --steps, --blocks: at least 1")
-    renderer = Renderer(args.adapter)
-    print(f"adapter: {renderer.ctx.name}", flush=True)
-    result = step_report(renderer, args.points, args.steps, args.blocks, log=lambda line: print(line, flush=True))
-    print()
-    print(format_step(result))
-    if args.json:
-        _write_json(args.json, result, default=float)
-    return 0
+    return _run_report(args, lambda renderer, log: step_report(renderer, args.points, args.steps, args.blocks,
+                                                               log=log), format_step)
 
 
 # ---------------------------------------------------------------------------------------- table
