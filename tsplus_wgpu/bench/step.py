@@ -42,26 +42,48 @@ def _digest(t):
 
 def _identical(renderer, points, steps):
     """Parameters after ``steps`` steps of two fresh trainers, caches off and on: equal?"""
-    ctx, digests = renderer.ctx, []
-    for mode in (False, True):
-        ctx.host_caching = mode
-        t = _trainer(renderer, points)
-        for _ in range(steps):
-            t.step()
-        digests.append(_digest(t))
-    ctx.host_caching = True
+    ctx, digests, before = renderer.ctx, [], renderer.ctx.host_caching
+    try:
+        for mode in (False, True):
+            ctx.host_caching = mode
+            t = _trainer(renderer, points)
+            for _ in range(steps):
+                t.step()
+            digests.append(_digest(t))
+    finally:
+        ctx.host_caching = before
     return digests[0] == digests[1], digests[1]
 
 
 def step_report(renderer, points=60, steps=20, blocks=8, warmup=20, log=None):
     """Medians of ``blocks`` blocks of ``steps`` steps per mode (caches on / off, alternating,
     after ``warmup`` steps), per-step counts of what was made, and the exactness check."""
-    ctx = renderer.ctx
+    ctx, before = renderer.ctx, renderer.ctx.host_caching
     t = _trainer(renderer, points)
     for _ in range(warmup):
         t.step()
     ms = {True: [], False: []}
     made = [0, 0, 0]          # with the caches: steps, bind groups made, uniform buffers made
+    try:
+        _blocks(t, ctx, ms, made, steps, blocks, log)
+    finally:
+        ctx.host_caching = before
+    same, digest = _identical(renderer, points, 2 * int(steps))
+    on, off = statistics.median(ms[True]), statistics.median(ms[False])
+    return {"adapter": ctx.name, "timing": timing_name(ctx), "commit": git_commit(),
+            "python": platform.python_version(), "load_average": os.getloadavg()[0],
+            "scene": f"procedural tiny 64x48 from {points} points", "vertices": int(t.n), "triangles": int(t.m),
+            "steps_per_block": int(steps), "blocks": int(blocks),
+            "ms_per_step_caches_on": on, "ms_per_step_caches_off": off, "ratio_off_over_on": off / on,
+            "blocks_on": ms[True], "blocks_off": ms[False],
+            "bind_groups_made_per_step": made[1] / max(made[0], 1),
+            "uniforms_made_per_step": made[2] / max(made[0], 1),
+            "identical_parameters": bool(same), "parameters_digest": digest}
+
+
+def _blocks(t, ctx, ms, made, steps, blocks, log):
+    """``blocks`` blocks of ``steps`` steps per mode, alternating which goes first; ms per step
+    into ``ms[mode]``, and with the caching on, steps and what was made into ``made``."""
     for block in range(int(blocks)):
         for mode in ((True, False) if block % 2 else (False, True)):
             ctx.host_caching = mode
@@ -79,21 +101,10 @@ def step_report(renderer, points=60, steps=20, blocks=8, warmup=20, log=None):
                 made[2] += u1 - u0
         if log:
             log(f"block {block + 1}/{blocks}: host caching on {ms[True][-1]:.1f} ms/step, off {ms[False][-1]:.1f}")
-    ctx.host_caching = True
-    same, digest = _identical(renderer, points, 2 * int(steps))
-    on, off = statistics.median(ms[True]), statistics.median(ms[False])
-    return {"adapter": ctx.name, "timing": timing_name(ctx), "commit": git_commit(),
-            "python": platform.python_version(), "load_average": os.getloadavg()[0],
-            "scene": f"procedural tiny 64x48 from {points} points", "vertices": int(t.n), "triangles": int(t.m),
-            "steps_per_block": int(steps), "blocks": int(blocks),
-            "ms_per_step_caches_on": on, "ms_per_step_caches_off": off, "ratio_off_over_on": off / on,
-            "blocks_on": ms[True], "blocks_off": ms[False],
-            "bind_groups_made_per_step": made[1] / max(made[0], 1),
-            "uniforms_made_per_step": made[2] / max(made[0], 1),
-            "identical_parameters": bool(same), "parameters_digest": digest}
 
 
 def format_step(r):
+    """The report of :func:`step_report` as text."""
     return "\n".join([
         f"adapter: {r['adapter']}   commit {r['commit']}   load average {r['load_average']:.2f}",
         f"scene: {r['scene']} ({r['vertices']:,} vertices, {r['triangles']:,} triangles); medians of "
