@@ -214,9 +214,9 @@ class BackwardPass:
         span = max(length for _, _, length in windows)
         alloc = r.buffer_source(result.reused, "backward_")
         pkeys, pvals = alloc(4 * span, "pair_keys"), alloc(4 * span, "pair_ids")
-        # the pair ids 0, 1, ...: the sort may permute its inputs in place, so every window
-        # starts from a copy
-        ids = self._pair_ids(span) if result.reused else c.upload(np.arange(span, dtype=np.uint32), "pair_ids_fresh")
+        # the pair ids 0, 1, ... (kept): the sort may permute its inputs in place, so every
+        # window starts from a copy
+        ids = self._pair_ids(span)
         buf = dict(v_out=v_out if isinstance(v_out, wgpu.GPUBuffer) else c.upload(v_out, "v_out"),
                    partials=alloc(4 * NSTAT * span, "partials"),
                    tri_stats=alloc(4 * NSTAT * m, "tri_stats"), vertex_sums=alloc(32 * n, "vertex_sums"),
