@@ -165,8 +165,12 @@ class FrameRenderer:
         params["clip_from_world"] = (clip_from_camera(camera, near) @ camera.world_to_camera).T.ravel()
         params["sh_size"] = source.sh_size
         ubuf = self.ctx.device.create_buffer_with_data(data=params.tobytes(), usage=wgpu.BufferUsage.UNIFORM)
+        # the SH may be larger than one binding (bound in ranges elsewhere: gpu/chunks.py); the
+        # wire reads each vertex's DC only, so it binds what one binding holds and draws the
+        # vertices past it (over ~700k at SH degree 3 on 128 MiB) in whatever colour that gives
+        lim = min(int(self.ctx.limits["max-storage-buffer-binding-size"]), int(b["sh"].size))
         bind = self._bind(self._wire, self._wire_src, params={"buffer": ubuf}, positions={"buffer": b["positions"]},
-                          triangles={"buffer": b["triangles"]}, sh={"buffer": b["sh"]})
+                          triangles={"buffer": b["triangles"]}, sh={"buffer": b["sh"], "size": lim})
         rp = encoder.begin_render_pass(color_attachments=[{
             "view": color_view, "clear_value": (0.0, 0.0, 0.0, 0.0), "load_op": wgpu.LoadOp.clear,
             "store_op": wgpu.StoreOp.store}])

@@ -2,6 +2,8 @@
 // stable radix sort, then the bounded segmented sum of segment_up/segment_down:
 // deterministic, nothing lost), then the SH chain rule: colour = max(0, SH(dir) . sh + 0.5), dir = (x - centre) / |x - centre|;
 // dL/d sh and the view-direction term of dL/d position (zero where the colour is clamped).
+// The per-vertex arrays may be bound a range of vertices at a time (items: that range's count;
+// tsplus_wgpu.gpu.chunks).
 #import frame
 #import dispatch
 #import sh_grad
@@ -13,6 +15,7 @@
 @group(0) @binding(4) var<storage, read_write> v_positions: array<f32>;  // [N, 3]
 @group(0) @binding(5) var<storage, read_write> v_sh: array<f32>;         // [N, K, 3]
 @group(0) @binding(6) var<storage, read_write> v_opacity: array<f32>;    // [N]
+@group(0) @binding(7) var<uniform> items: ItemRange;
 
 const WG: u32 = 256u;   // invocations per workgroup
 
@@ -20,7 +23,7 @@ const WG: u32 = 256u;   // invocations per workgroup
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
     let v = linear_group(wid, nwg) * WG + li;
-    if (v >= params.num_vertices) {
+    if (v >= items.count) {
         return;
     }
     let a = vertex_sums[2u * v];

@@ -1,6 +1,10 @@
-// Adam over one parameter group: elements [offset, offset + n) of flat f32 buffers.
+// Adam over one parameter group: elements [offset, offset + n) of flat f32 buffers (or of
+// the range of them bound: tsplus_wgpu.gpu.chunks, for buffers larger than one binding).
 //   m = b1 m + (1 - b1) g;  v = b2 v + (1 - b2) g^2
 //   p -= lr * (m / bias1) / (sqrt(v / bias2) + eps),  bias_k = 1 - b_k^step (host, float64)
+// Two learning rates in one group (the SH, [N, K, 3]: DC and the rest): element k of the group
+// takes lr where period is 0 or (phase + k) mod period < head, else lr_tail (phase: where this
+// dispatch's first element lies in the group, mod period).
 // One element per invocation; grids beyond 65535 workgroups are 2-D (linear_group).
 #import dispatch
 
@@ -12,6 +16,11 @@ const ADAM_EPS: f32 = 1e-15;
 struct AdamParams {
     offset: u32,
     n: u32,
+    period: u32,
+    head: u32,
+    phase: u32,
+    _pad0: u32,
+    lr_tail: f32,
     lr: f32,
     beta1: f32,
     beta2: f32,
@@ -36,10 +45,11 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         return;
     }
     let i = ap.offset + k;
+    let lr = select(ap.lr_tail, ap.lr, ap.period == 0u || (ap.phase + k) % max(ap.period, 1u) < ap.head);
     let g = grad[i];
     let m = ap.beta1 * exp_avg[i] + ap.one_minus_beta1 * g;
     let v = ap.beta2 * exp_avg_sq[i] + ap.one_minus_beta2 * (g * g);
     exp_avg[i] = m;
     exp_avg_sq[i] = v;
-    param[i] = param[i] - ap.lr * (m / ap.bias1) / (sqrt(v / ap.bias2) + ap.eps);
+    param[i] = param[i] - lr * (m / ap.bias1) / (sqrt(v / ap.bias2) + ap.eps);
 }

@@ -1,10 +1,10 @@
-// Per vertex: the renderer's inputs from the trained parameters (host: tsplus_wgpu.kernels.optim.TrainActivate; twin: tsplus_wgpu.reference.optim.train_activate).
+// Per vertex: the renderer's opacity from the trained logit (host: tsplus_wgpu.kernels.optim.TrainActivate; twin: tsplus_wgpu.reference.optim.train_activate).
 //   reinvert (when the opacity floor moves from floor_old to floor): the logit is rewritten so
 //     the vertex keeps its opacity: q = clamp((o_old - floor) / (1 - floor), eps, 1 - eps),
 //     w = log(q) - log(1 - q), with o_old = floor_old + (1 - floor_old) sigmoid(w_old).
 //   opacity[v] = floor + (1 - floor) * sigmoid(w[v])
-//   sh[v, k, c] = sh_planar[k, v, c]  ([K, N, 3] -> [N, K, 3]; the planar layout makes SH DC
-//     and SH rest two contiguous ranges, the parameter groups of Adam)
+// The SH need no activation: the trainer keeps them in the renderer's [N, K, 3] layout and the
+// renderer reads the parameter buffer itself.
 #import dispatch
 
 // The default clamp of q when re-inverting (the host passes it as ActivateParams.eps).
@@ -12,20 +12,18 @@ const REINVERT_EPS: f32 = 1e-6;
 
 struct ActivateParams {
     n: u32,
-    k: u32,
     reinvert: u32,
     _pad0: u32,
+    _pad1: u32,
     floor: f32,
     floor_old: f32,
     eps: f32,
-    _pad1: f32,
+    _pad2: f32,
 }
 
 @group(0) @binding(0) var<uniform> ap: ActivateParams;
-@group(0) @binding(1) var<storage, read> sh_planar: array<f32>;       // [K, N, 3]
-@group(0) @binding(2) var<storage, read_write> logits: array<f32>;    // [N]
-@group(0) @binding(3) var<storage, read_write> sh: array<f32>;        // [N, K, 3]
-@group(0) @binding(4) var<storage, read_write> opacity: array<f32>;   // [N]
+@group(0) @binding(1) var<storage, read_write> logits: array<f32>;    // [N]
+@group(0) @binding(2) var<storage, read_write> opacity: array<f32>;   // [N]
 
 fn sigmoid(w: f32) -> f32 {
     let e = exp(-abs(w));
@@ -47,11 +45,4 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         logits[v] = w;
     }
     opacity[v] = ap.floor + (1.0 - ap.floor) * sigmoid(w);
-    for (var k = 0u; k < ap.k; k++) {
-        let src = (k * ap.n + v) * 3u;
-        let dst = (v * ap.k + k) * 3u;
-        sh[dst] = sh_planar[src];
-        sh[dst + 1u] = sh_planar[src + 1u];
-        sh[dst + 2u] = sh_planar[src + 2u];
-    }
 }

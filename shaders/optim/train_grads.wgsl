@@ -3,8 +3,11 @@
 //   v_logits[v] = (v_opacity[v] + reg[v].x) * (1 - floor) * s (1 - s),  s = sigmoid(w[v])
 //     (reg: the early opacity loss's gradient per vertex, opacity_reg + a segmented sum;
 //      read only when use_reg is 1)
-//   v_sh_planar[k, v, c] = v_sh[v, k, c] for k < active_k, else 0 (bands above the SH degree
-//     of the schedule are not trained yet)
+//   v_sh[v, k, c] = 0 for k >= active_k, in place (bands above the SH degree of the schedule
+//     are not trained yet); the SH parameters share the renderer's [N, K, 3] layout, so v_sh
+//     is their gradient as it is.
+// The per-vertex arrays may be bound a range of vertices at a time (n: that range's count;
+// tsplus_wgpu.gpu.chunks).
 #import dispatch
 
 struct GradParams {
@@ -20,11 +23,10 @@ struct GradParams {
 
 @group(0) @binding(0) var<uniform> gp: GradParams;
 @group(0) @binding(1) var<storage, read> logits: array<f32>;            // [N]
-@group(0) @binding(2) var<storage, read> v_sh: array<f32>;              // [N, K, 3]
+@group(0) @binding(2) var<storage, read_write> v_sh: array<f32>;        // [N, K, 3]
 @group(0) @binding(3) var<storage, read> v_opacity: array<f32>;         // [N]
 @group(0) @binding(4) var<storage, read> reg: array<vec4<f32>>;         // [N] (.x)
-@group(0) @binding(5) var<storage, read_write> v_sh_planar: array<f32>; // [K, N, 3]
-@group(0) @binding(6) var<storage, read_write> v_logits: array<f32>;    // [N]
+@group(0) @binding(5) var<storage, read_write> v_logits: array<f32>;    // [N]
 
 @compute @workgroup_size(256)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
@@ -41,12 +43,10 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         vo += reg[v].x;
     }
     v_logits[v] = vo * (1.0 - gp.floor) * (s * (1.0 - s));
-    for (var k = 0u; k < gp.k; k++) {
-        let src = (v * gp.k + k) * 3u;
-        let dst = (k * gp.n + v) * 3u;
-        let on = k < gp.active_k;
-        v_sh_planar[dst] = select(0.0, v_sh[src], on);
-        v_sh_planar[dst + 1u] = select(0.0, v_sh[src + 1u], on);
-        v_sh_planar[dst + 2u] = select(0.0, v_sh[src + 2u], on);
+    for (var k = gp.active_k; k < gp.k; k++) {
+        let base = (v * gp.k + k) * 3u;
+        v_sh[base] = 0.0;
+        v_sh[base + 1u] = 0.0;
+        v_sh[base + 2u] = 0.0;
     }
 }

@@ -1,4 +1,6 @@
 // Per vertex: colour = max(0, SH(dir) + 0.5), dir = unit vector camera centre -> vertex.
+// The per-vertex arrays may be bound a range of vertices at a time (items: that range's count;
+// tsplus_wgpu.gpu.chunks), so SH larger than one storage binding are evaluated in chunks.
 #import frame
 #import dispatch
 #import sh
@@ -7,6 +9,7 @@
 @group(0) @binding(1) var<storage, read> positions: array<f32>;   // [N, 3]
 @group(0) @binding(2) var<storage, read> sh_coeffs: array<f32>;   // [N, K, 3]
 @group(0) @binding(3) var<storage, read_write> colors: array<vec4<f32>>;  // [N]
+@group(0) @binding(4) var<uniform> items: ItemRange;
 
 const THREADS: u32 = 256u;   // one item per invocation
 
@@ -14,7 +17,7 @@ const THREADS: u32 = 256u;   // one item per invocation
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
     let v = linear_group(wid, nwg) * THREADS + li;
-    if (v >= params.num_vertices) {
+    if (v >= items.count) {
         return;
     }
     let x = vec3<f32>(positions[3u * v], positions[3u * v + 1u], positions[3u * v + 2u]);

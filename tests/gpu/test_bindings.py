@@ -13,7 +13,7 @@ from tsplus_wgpu.kernels.optim import TrainGrads
 
 
 def _grads_args(ctx, n=64, k=4):
-    names = ("logits", "v_sh", "v_opacity", "reg", "v_sh_planar", "v_logits")
+    names = ("logits", "v_sh", "v_opacity", "reg", "v_logits")
     return {name: ctx.buffer(16 * n * k, name) for name in names}
 
 

@@ -10,20 +10,17 @@ import tsplus_wgpu.reference.optim as twin
 from scenes import submit as _run
 
 
-@pytest.mark.parametrize("n,k", [(1, 1), (300, 4), (777, 16)])
+@pytest.mark.parametrize("n", [1, 300, 777])
 @pytest.mark.parametrize("reinvert", [False, True])
-def test_train_activate(ctx, n, k, reinvert):
-    rng = np.random.default_rng(n + k)
-    sp = rng.normal(size=(k, n, 3)).astype(np.float32)
+def test_train_activate(ctx, n, reinvert):
+    rng = np.random.default_rng(n)
     w = rng.normal(scale=3.0, size=n).astype(np.float32)
     w[:3] = [-30.0, 0.0, 30.0][: min(3, n)]
     floor, floor_old = (0.35, 0.1) if reinvert else (0.2, None)
-    bsp, bw = ctx.upload(sp), ctx.upload(w)
-    bsh, bo = ctx.buffer(12 * n * k), ctx.buffer(4 * n)
+    bw, bo = ctx.upload(w), ctx.buffer(4 * n)
     stage = TrainActivate(ctx)
-    _run(ctx, lambda enc: stage(enc, bsp, bw, bsh, bo, n, k, floor, floor_old))
-    sh_ref, o_ref, w_ref = twin.train_activate(sp, w, floor, floor_old)
-    np.testing.assert_array_equal(ctx.read(bsh, np.float32, 3 * n * k).reshape(n, k, 3), sh_ref.astype(np.float32))
+    _run(ctx, lambda enc: stage(enc, bw, bo, n, floor, floor_old))
+    o_ref, w_ref = twin.train_activate(w, floor, floor_old)
     np.testing.assert_allclose(ctx.read(bo, np.float32, n), o_ref, rtol=0, atol=2e-6)
     w_dev = ctx.read(bw, np.float32, n)
     if reinvert:
@@ -36,9 +33,15 @@ def test_train_activate(ctx, n, k, reinvert):
         np.testing.assert_array_equal(w_dev, w)
 
 
-@pytest.mark.parametrize("n,k,active", [(5, 1, 1), (300, 16, 4), (513, 9, 9)])
+@pytest.mark.parametrize("n,k,active,chunk", [(5, 1, 1, None), (300, 16, 4, None), (513, 9, 9, None),
+                                              (1000, 16, 4, 2**14), (700, 9, 1, 8192)])
 @pytest.mark.parametrize("use_reg", [False, True])
-def test_train_grads(ctx, n, k, active, use_reg):
+def test_train_grads(ctx, monkeypatch, n, k, active, chunk, use_reg):
+    """``chunk``: bindings of at most that many bytes, so the vertices go in ranges (gpu/chunks.py)."""
+    import tsplus_wgpu.gpu.chunks as chunks
+    monkeypatch.setattr(chunks, "CHUNK_BYTES", chunk)
+    if chunk:
+        assert len(chunks.item_chunks(ctx, n, [12 * k, 16])) >= 3
     rng = np.random.default_rng(7 * n + k)
     w = rng.normal(scale=2.0, size=n).astype(np.float32)
     vsh = rng.normal(size=(n, k, 3)).astype(np.float32)
@@ -46,14 +49,14 @@ def test_train_grads(ctx, n, k, active, use_reg):
     reg = np.zeros((n, 4), np.float32)
     reg[:, 0] = rng.normal(size=n)
     floor = 0.3
-    bvsp, bvw = ctx.buffer(12 * n * k), ctx.buffer(4 * n)
+    bvsh, bvw = ctx.upload(vsh), ctx.buffer(4 * n)
     stage = TrainGrads(ctx)
-    _run(ctx, lambda enc: stage(enc, ctx.upload(w), ctx.upload(vsh), ctx.upload(vo), ctx.upload(reg), bvsp, bvw,
+    _run(ctx, lambda enc: stage(enc, ctx.upload(w), bvsh, ctx.upload(vo), ctx.upload(reg), bvw,
                                 n, k, active, floor, use_reg))
-    vsp_ref, vw_ref = twin.train_grads(w, vsh, vo, floor, active, reg[:, 0] if use_reg else None)
-    vsp = ctx.read(bvsp, np.float32, 3 * n * k).reshape(k, n, 3)
-    np.testing.assert_array_equal(vsp, vsp_ref.astype(np.float32))
-    assert not np.any(vsp[active:])
+    vsh_ref, vw_ref = twin.train_grads(w, vsh, vo, floor, active, reg[:, 0] if use_reg else None)
+    got = ctx.read(bvsh, np.float32, 3 * n * k).reshape(n, k, 3)
+    np.testing.assert_array_equal(got, vsh_ref.astype(np.float32))
+    assert not np.any(got[:, active:]) and np.all(got[:, :active] == vsh[:, :active])
     np.testing.assert_allclose(ctx.read(bvw, np.float32, n), vw_ref, rtol=1e-5, atol=1e-7)
 
 
@@ -131,6 +134,32 @@ def test_adam(ctx, adam, n, max_dim):
     assert _rel(ctx.read(bp, np.float32, n), rp) <= 1e-6
     assert _rel(ctx.read(bm, np.float32, n), rm) <= 1e-6
     assert _rel(ctx.read(bv, np.float32, n), rv) <= 1e-6
+
+
+@pytest.mark.parametrize("n,k,offset,max_binding", [(500, 16, 0, None), (500, 16, 0, 4096), (333, 9, 48, 2048),
+                                                      (64, 1, 0, 1024)])
+def test_adam_two_rates_in_ranges(ctx, adam, n, k, offset, max_binding):
+    """The SH [N, K, 3] as one group: the first 3 of every 3K elements at lr (DC), the rest at
+    lr_tail; with max_binding the buffers go in ranges, each bound from a 256-byte boundary."""
+    size = offset + 3 * n * k
+    rng = np.random.default_rng(n + k)
+    p = rng.standard_normal(size).astype(np.float32)
+    bp, bm, bv = _state(ctx, p)
+    rp, rm, rv = p[offset:].astype(np.float64), np.zeros(3 * n * k), np.zeros(3 * n * k)
+    lr = np.where(np.arange(3 * n * k) % (3 * k) < 3, 0.05, 0.0025)
+    for step in (1, 2, 3):
+        g = rng.standard_normal(size).astype(np.float32)
+        enc = ctx.device.create_command_encoder()
+        adam.record(enc, bp, ctx.upload(g), bm, bv, 3 * n * k, 0.05, step, offset=offset, lr_tail=0.0025,
+                    period=3 * k, head=3, max_binding=max_binding)
+        ctx.queue.submit([enc.finish()])
+        rp, rm, rv = twin.adam(rp, g[offset:], rm, rv, lr, step)
+        if step == 1:   # the first step moves every element by its own lr: DC 20x the rest
+            moved = np.abs(ctx.read(bp, np.float32, size)[offset:] - p[offset:]).reshape(n, k, 3)
+            np.testing.assert_allclose(moved, lr.reshape(n, k, 3), rtol=1e-3)
+    out = ctx.read(bp, np.float32, size)
+    assert _rel(out[offset:], rp) <= 1e-6
+    assert np.array_equal(out[:offset], p[:offset])               # before the group: untouched
 
 
 def test_adam_defaults_are_the_shaders():

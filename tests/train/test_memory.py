@@ -89,8 +89,8 @@ def _slope(family, name, x, **fixed):
 
 
 def test_the_coefficients_docs_memory_quotes():
-    assert _slope("vertex", "num_vertices", 2**20) == 136 + 72 * 16          # SH degree 3: K = 16
-    assert _slope("vertex", "num_vertices", 2**20, sh_degree=0) == 136 + 72
+    assert _slope("vertex", "num_vertices", 2**20) == 136 + 48 * 16          # SH degree 3: K = 16
+    assert _slope("vertex", "num_vertices", 2**20, sh_degree=0) == 136 + 48
     assert _slope("triangle", "num_triangles", 3 * 2**20) == pytest.approx(402.7, abs=0.05)
     assert _slope("pair", "pairs", 2**22) == pytest.approx(125.4, abs=0.05)
     assert _slope("pair", "pairs", 2**22, rows=0) == pytest.approx(117.4, abs=0.05)
@@ -110,8 +110,12 @@ def test_largest_model_is_the_most_that_fits():
     assert training_bytes(n, round(1.5 * n), 3, 960, 540, pairs)["total"] <= 8 * gib
     assert training_bytes(n + 1, round(1.5 * (n + 1)), 3, 960, 540, pairs)["total"] > 8 * gib
     assert largest_model(16 * gib, **args) > 2 * n - 10_000        # affine: twice the memory, about twice
-    # one storage binding of 128 MiB: the SH (192 bytes a vertex at degree 3) first
-    assert largest_model(8 * gib, **args, max_binding=2**27) == 2**27 // 192
+    # one storage binding of 128 MiB: the projected triangles (96 bytes a triangle, 1.5 a vertex)
+    # first; the SH (192 bytes a vertex at degree 3, bound in ranges) need one 2 GiB buffer only.
+    # Before the SH were bound in ranges, they came first: 2**27 // 192 = 699,050 vertices
+    n = largest_model(8 * gib, **args, max_binding=2**27)
+    assert round(1.5 * n) <= 2**27 // 96 < round(1.5 * (n + 1)) and n > 2**27 // 192
+    assert largest_model(8 * gib, **args, max_binding=2**27, max_buffer=2**27) == 2**27 // 192   # SH: one buffer
     assert largest_model(1000, **args) == 0
 
 

@@ -136,6 +136,7 @@ def test_prune_moves_adam_rows_with_their_vertices(renderer, tiny):
                                           a[f"{mom}_{name}"].reshape(shape)[old])
     for mom in ("exp_avg", "exp_avg_sq"):
         np.testing.assert_array_equal(b[f"{mom}_sh"].reshape(k, t.n, 3), a[f"{mom}_sh"].reshape(k, n0, 3)[:, old])
+        assert np.any(a[f"{mom}_sh"])                # moments were there to keep
     np.testing.assert_array_equal(b["logits"], a["logits"][old])
     # the triangles are the surviving old ones, re-indexed
     old_tris = {tuple(sorted(tr)) for tr in a["triangles"]}

@@ -43,20 +43,28 @@ def test_max_vertices_applies_when_smaller_or_without_a_budget():
     assert (off.vertices, off.bound, off.why) == (3_000_000, "max-vertices", "--max-vertices; no vertex budget")
 
 
-def test_the_storage_binding_limit_lowers_the_cap():
-    # the paper's images (1.6k x 1k): the budget allows 3.2M, --max-vertices 3M, but one 128 MiB binding
-    # holds the SH (16 x 12 bytes) of 699,050 vertices
+def test_the_device_limits_lower_the_cap():
+    # the paper's images (1.6k x 1k): the budget allows 3.2M, --max-vertices 3M. The SH are bound a
+    # range of vertices at a time: one WebGPU-default 256 MiB buffer holds the SH (16 x 12 bytes)
+    # of 1,398,101 vertices (one 128 MiB binding held 699,050 before they were chunked)
     cap = vertex_cap(TrainConfig(), _cams((1600, 1000)), WEBGPU_DEFAULT_LIMITS)
-    assert (cap.vertices, cap.bound) == (2**27 // 192, "storage-binding limit") == (699_050, "storage-binding limit")
-    assert "--max-vertices allows 3,000,000 vertices" in cap.why and "over this device's 128 MiB" in cap.why
-    assert cap.reached(699_050).startswith("storage-binding limit reached (699,050 >= 699,050, the most vertices")
+    assert (cap.vertices, cap.bound) == (2**28 // 192, "buffer-size limit") == (1_398_101, "buffer-size limit")
+    assert "--max-vertices allows 3,000,000 vertices" in cap.why and "over this device's 256 MiB buffer" in cap.why
+    assert cap.reached(1_398_101).startswith("buffer-size limit reached (1,398,101 >= 1,398,101, the most vertices")
     assert cap.triangles == 2**27 // triangle_bytes() and triangle_bytes() == 96
-    small = dict(WEBGPU_DEFAULT_LIMITS, **{"max-storage-buffer-binding-size": 192 * 1000})
+    # llvmpipe's 2 GiB buffers: the SH of 11.2 M vertices fit; 3M is the cap
+    lavapipe = dict(WEBGPU_DEFAULT_LIMITS, **{"max-buffer-size": 2**31 - 256})
+    assert vertex_cap(TrainConfig(), _cams((1600, 1000)), lavapipe).bound == "max-vertices"
+    # the vertex sums (32 bytes a vertex) bound whole: one binding of them
+    sums = dict(lavapipe, **{"max-storage-buffer-binding-size": 32 * 1000})
+    cap = vertex_cap(TrainConfig(), LUND, sums)
+    assert (cap.vertices, cap.bound, cap.triangles) == (1000, "storage-binding limit", 32_000 // 96)
+    assert "the vertex budget allows 84,372" in cap.why and "vertex sums" in cap.why
+    small = dict(WEBGPU_DEFAULT_LIMITS, **{"max-buffer-size": 192 * 1000})
     cap = vertex_cap(TrainConfig(), LUND, small)
     assert (cap.vertices, cap.triangles) == (1000, 2000) and "the vertex budget allows 84,372" in cap.why
-    assert vertex_cap(TrainConfig(sh_degree=0), LUND, small).vertices == 16_000    # 12 bytes of SH a vertex
-    # the smaller of the binding and buffer limits
-    assert vertex_cap(TrainConfig(), LUND, dict(small, **{"max-buffer-size": 192 * 10})).vertices == 10
+    # 12 bytes of SH a vertex fit 16,000 in the buffer; the sums' binding (192,000 bytes) holds 6,000
+    assert vertex_cap(TrainConfig(sh_degree=0), LUND, small).vertices == 192_000 // 32
     assert vertex_cap(TrainConfig(), LUND, WEBGPU_DEFAULT_LIMITS).bound == "vertex budget"     # fits: unchanged
 
 
@@ -122,7 +130,7 @@ def test_the_trainer_caps_its_scene_and_device(renderer, monkeypatch):
     assert t.n > n0
     limit = (48 * m0 + 15) // 16 * 16
     assert limit // 192 < 6144
-    monkeypatch.setitem(renderer.ctx.limits, "max-storage-buffer-binding-size", limit)
+    monkeypatch.setitem(renderer.ctx.limits, "max-buffer-size", limit)     # the SH: one buffer, in ranges
     cap = Trainer(tiny, TrainConfig(**scaled), renderer=renderer).topology.cap
-    assert (cap.vertices, cap.bound, cap.triangles) == (limit // 192, "storage-binding limit", limit // 96)
+    assert (cap.vertices, cap.bound, cap.triangles) == (limit // 192, "buffer-size limit", limit // 96)
     assert "the vertex budget allows 6,144 vertices" in cap.why

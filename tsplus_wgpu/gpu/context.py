@@ -214,29 +214,36 @@ class GpuContext:
         return self.info.get("adapter_type") == "CPU"
 
     # ---------------------------------------------------------------- buffers
-    def check_size(self, name, nbytes):
-        lim = self.limits["max-storage-buffer-binding-size"]
+    def check_size(self, name, nbytes, chunked=False):
+        """Raise the one-line error for a buffer of ``nbytes`` over this device's storage-binding
+        limit, or with ``chunked`` (bound a range at a time: :mod:`.chunks`) its buffer-size limit."""
+        key = "max-buffer-size" if chunked else "max-storage-buffer-binding-size"
+        lim = self.limits[key]
         if nbytes > lim:
+            what = "buffer-size" if chunked else "storage-binding"
             raise ValueError(
                 f"{name}: needs {nbytes / 2**20:.1f} MiB in one buffer, over this device's "
-                f"storage-binding limit of {lim / 2**20:.0f} MiB; use fewer triangles or a smaller image")
+                f"{what} limit of {lim / 2**20:.0f} MiB; use fewer triangles or a smaller image")
 
-    def buffer(self, nbytes, label="", usage=None):
+    def buffer(self, nbytes, label="", usage=None, chunked=False):
+        """A new buffer of ``nbytes`` (rounded up to 16). ``chunked``: kernels bind it a range at
+        a time (:mod:`.chunks`), so it may exceed one binding, up to the buffer-size limit."""
         usage = usage if usage is not None else (
             wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST)
         # zero-sized buffers are invalid; whole vec4s so any buffer can be read 16 bytes at a time
         nbytes = max(16, (int(nbytes) + 15) // 16 * 16)
-        self.check_size(label or "buffer", nbytes)
+        self.check_size(label or "buffer", nbytes, chunked)
         buf = self._tally(self.device.create_buffer(size=nbytes, usage=usage, label=label))
         if self.poison and usage & wgpu.BufferUsage.COPY_DST:
             self.queue.write_buffer(buf, 0, b"\xff" * nbytes)
         return buf
 
-    def upload(self, array, label="", usage=None):
+    def upload(self, array, label="", usage=None, chunked=False):
+        """A new buffer holding ``array``'s bytes (``chunked``: as in :meth:`buffer`)."""
         arr = np.ascontiguousarray(array)
         if arr.nbytes == 0:
             arr = np.zeros(4, np.uint32)
-        self.check_size(label or "buffer", arr.nbytes)
+        self.check_size(label or "buffer", arr.nbytes, chunked)
         usage = usage if usage is not None else (
             wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST)
         if arr.nbytes % 16:   # whole vec4s (see buffer())

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .chunks import Slice
 from .context import GpuContext
 
 
@@ -55,12 +56,17 @@ class Stage:
         return self.ctx.uniform(arr, label=f"{self.stage}.{struct_name}")
 
     def bind(self, buffers):
+        """The bind group of ``buffers`` by binding name: a buffer (bound whole) or a
+        :class:`~.chunks.Slice` (a byte range of one)."""
         want = set(self.src.bindings)
         got = set(buffers)
         if want != got:
             raise KeyError(f"{self.stage}.wgsl bindings: missing {sorted(want - got)}, unexpected {sorted(got - want)}")
-        return self.ctx.bind_group(self.layout, [(self.src.bindings[n].slot, buf, 0, buf.size)
-                                                 for n, buf in buffers.items()])
+        entries = []
+        for name, b in buffers.items():
+            buf, off, size = b if isinstance(b, Slice) else (b, 0, b.size)
+            entries.append((self.src.bindings[name].slot, buf, off, size))
+        return self.ctx.bind_group(self.layout, entries)
 
     def dispatch(self, encoder, groups, buffers, profiler=None, label=None):
         """Record one dispatch; ``groups`` is an int (split into a 2-D grid) or an (x, y, z) tuple."""

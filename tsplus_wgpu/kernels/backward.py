@@ -5,6 +5,7 @@ and replay (``rasterize_backward``), and the chain rule to the triangles' corner
 from __future__ import annotations
 
 from ..gpu import Stage
+from .project import per_vertex
 from ..gpu.wgsl import constant
 
 #: Sufficient statistics per (triangle, tile) pair and per triangle (``shaders/common/grad_stats.wgsl``).
@@ -66,10 +67,14 @@ class VertexBackward(Stage):
     stage = "vertex_backward"
 
     def __call__(self, enc, params, positions, sh, vertex_sums, v_positions, v_sh, v_opacity, num_vertices,
-                 profiler=None):
-        self.dispatch(enc, self.groups(num_vertices),
-                      dict(params=params, positions=positions, sh_coeffs=sh, vertex_sums=vertex_sums,
-                           v_positions=v_positions, v_sh=v_sh, v_opacity=v_opacity), profiler)
+                 profiler=None, sh_size=None):
+        """In chunks of vertices where the SH are larger than one binding; ``sh_size``: K
+        (default: from the buffer's size)."""
+        n = int(num_vertices)
+        k = int(sh_size) if sh_size is not None else max(1, sh.size // max(12 * n, 1))
+        per_vertex(self, enc, n, dict(positions=(positions, 12), sh_coeffs=(sh, 12 * k), vertex_sums=(vertex_sums, 32),
+                                      v_positions=(v_positions, 12), v_sh=(v_sh, 12 * k), v_opacity=(v_opacity, 4)),
+                   dict(params=params), profiler)
 
 
 __all__ = ["NSTAT", "BackwardPrepare", "RasterizeBackward", "ProjectBackward", "VertexBackward"]

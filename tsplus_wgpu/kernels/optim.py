@@ -1,18 +1,21 @@
 """Host classes of shaders/optim/: the trainer's per-vertex kernels and Adam. Twins:
 :mod:`tsplus_wgpu.reference.optim` (same names).
 
-* ``train_activate`` (:class:`TrainActivate`): trained parameters -> the renderer's inputs:
-  opacity ``o = m + (1 - m) sigmoid(w)`` (re-inverting ``w`` first when the floor moves) and
-  SH from the planar ``[K, N, 3]`` layout (SH DC and SH rest are contiguous ranges there, the
-  Adam groups) to the renderer's ``[N, K, 3]``.
+* ``train_activate`` (:class:`TrainActivate`): the opacity logits -> the renderer's opacity
+  ``o = m + (1 - m) sigmoid(w)`` (re-inverting ``w`` first when the floor moves). The SH
+  parameters are in the renderer's ``[N, K, 3]`` layout, read by the renderer as they are.
 * ``train_grads`` (:class:`TrainGrads`): renderer gradients -> parameter gradients:
-  ``v_w = (v_o + reg) (1 - m) s (1 - s)`` and ``v_sh`` to planar with the bands above the
-  scheduled SH degree zeroed.
+  ``v_w = (v_o + reg) (1 - m) s (1 - s)``, and the bands of ``v_sh`` above the scheduled SH
+  degree zeroed in place (``v_sh`` is then the SH parameters' gradient).
 * ``opacity_reg`` (:class:`OpacityReg`): the early opacity loss ``weight * mean_T o_T``, its
   gradient per corner; :class:`OpacityRegGradient` sums the corners per vertex with
   :class:`~tsplus_wgpu.kernels.reduce.SegmentSum` over the corners sorted by vertex (sorted
   once per topology on the host).
-* ``adam`` (:class:`Adam`): one Adam step of one parameter group.
+* ``adam`` (:class:`Adam`): one Adam step of one parameter group (two learning rates in one
+  group where its elements alternate: the SH's DC and the rest, per vertex).
+
+The per-vertex and per-element kernels take arrays larger than one storage binding a range at a
+time (:mod:`tsplus_wgpu.gpu.chunks`).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..gpu import Stage, grid
+from ..gpu.chunks import Slice, binding_bytes, item_chunks, item_slice
 from ..gpu.context import GpuContext
 from .reduce import SegmentSum
 
@@ -27,24 +31,29 @@ from .reduce import SegmentSum
 class TrainActivate(Stage):
     stage = "train_activate"
 
-    def __call__(self, enc, sh_planar, logits, sh, opacity, n, k, floor, floor_old=None, eps=None,
-                 profiler=None):
+    def __call__(self, enc, logits, opacity, n, floor, floor_old=None, eps=None, profiler=None):
         """``eps``: the clamp of the re-inverted q (default: the shader's ``REINVERT_EPS``)."""
         eps = self.const("REINVERT_EPS") if eps is None else eps
-        ap = self.uniform("ActivateParams", n=n, k=k, reinvert=int(floor_old is not None), floor=floor,
+        ap = self.uniform("ActivateParams", n=n, reinvert=int(floor_old is not None), floor=floor,
                           floor_old=0.0 if floor_old is None else floor_old, eps=eps)
-        self.dispatch(enc, self.groups(n), dict(ap=ap, sh_planar=sh_planar, logits=logits, sh=sh, opacity=opacity),
-                      profiler)
+        self.dispatch(enc, self.groups(n), dict(ap=ap, logits=logits, opacity=opacity), profiler)
 
 
 class TrainGrads(Stage):
     stage = "train_grads"
 
-    def __call__(self, enc, logits, v_sh, v_opacity, reg, v_sh_planar, v_logits, n, k, active_k, floor,
-                 use_reg, profiler=None):
-        gp = self.uniform("GradParams", n=n, k=k, active_k=active_k, use_reg=int(bool(use_reg)), floor=floor)
-        self.dispatch(enc, self.groups(n), dict(gp=gp, logits=logits, v_sh=v_sh, v_opacity=v_opacity, reg=reg,
-                                                 v_sh_planar=v_sh_planar, v_logits=v_logits), profiler)
+    def __call__(self, enc, logits, v_sh, v_opacity, reg, v_logits, n, k, active_k, floor, use_reg,
+                 profiler=None):
+        """``v_sh`` ``[N, K, 3]`` is zeroed in place above ``active_k``; in chunks of vertices
+        where it is larger than one binding."""
+        widths = dict(logits=4, v_sh=12 * k, v_opacity=4, reg=16, v_logits=4)
+        bufs = dict(logits=logits, v_sh=v_sh, v_opacity=v_opacity, reg=reg, v_logits=v_logits)
+        chunks = item_chunks(self.ctx, n, widths.values())
+        for start, count in chunks:
+            gp = self.uniform("GradParams", n=count, k=k, active_k=active_k, use_reg=int(bool(use_reg)), floor=floor)
+            bound = bufs if len(chunks) == 1 else {
+                key: item_slice(buf, start, count, widths[key]) for key, buf in bufs.items()}
+            self.dispatch(enc, self.groups(count), dict(gp=gp, **bound), profiler)
 
 
 class OpacityReg(Stage):
@@ -104,10 +113,14 @@ class Adam(Stage):
         self.beta2 = float(self.const("BETA2") if beta2 is None else beta2)
         self.eps = float(self.const("ADAM_EPS") if eps is None else eps)
 
-    def record(self, enc, param, grad, exp_avg, exp_avg_sq, n, lr, step, offset=0, profiler=None, max_dim=None):
+    def record(self, enc, param, grad, exp_avg, exp_avg_sq, n, lr, step, offset=0, profiler=None, max_dim=None,
+               lr_tail=None, period=0, head=0, max_binding=None):
         """One step of one group. ``step`` is the group's 1-based step count (bias correction).
-        ``max_dim`` overrides the per-dimension workgroup limit (tests of the 2-D grid)."""
-        n, offset = int(n), int(offset)
+        ``max_dim`` overrides the per-dimension workgroup limit (tests of the 2-D grid).
+        ``period``, ``head``, ``lr_tail``: element ``offset + k`` takes ``lr`` where ``k mod
+        period < head``, else ``lr_tail`` (period 0: ``lr`` everywhere). Buffers larger
+        than one binding (or than ``max_binding`` bytes: tests) are stepped a range at a time."""
+        n, offset, period = int(n), int(offset), int(period)
         if n < 0 or offset < 0:
             raise ValueError(f"Adam: n and offset must be >= 0, got n={n}, offset={offset}")
         if int(step) < 1:
@@ -117,12 +130,28 @@ class Adam(Stage):
                 raise ValueError(f"Adam: buffer {name} holds {buf.size // 4} floats, needs {offset + n}")
         if n == 0:
             return
-        ap = self.uniform("AdamParams", offset=offset, n=n, lr=lr, beta1=self.beta1, beta2=self.beta2,
-                          one_minus_beta1=1.0 - self.beta1, one_minus_beta2=1.0 - self.beta2,
-                          eps=self.eps, bias1=_bias(self.beta1, step), bias2=_bias(self.beta2, step))
-        dims = grid(self.groups(n), max_dim or self.ctx.limits["max-compute-workgroups-per-dimension"])
-        self.dispatch(enc, dims, dict(ap=ap, param=param, grad=grad, exp_avg=exp_avg, exp_avg_sq=exp_avg_sq),
-                      profiler)
+        bufs = dict(param=param, grad=grad, exp_avg=exp_avg, exp_avg_sq=exp_avg_sq)
+        const = dict(period=period, head=int(head), lr=lr, lr_tail=lr if lr_tail is None else lr_tail,
+                     beta1=self.beta1, beta2=self.beta2, one_minus_beta1=1.0 - self.beta1,
+                     one_minus_beta2=1.0 - self.beta2, eps=self.eps, bias1=_bias(self.beta1, step),
+                     bias2=_bias(self.beta2, step))
+        max_dim = max_dim or self.ctx.limits["max-compute-workgroups-per-dimension"]
+        cap = binding_bytes(self.ctx) if max_binding is None else int(max_binding)
+        if max(b.size for b in bufs.values()) <= cap:
+            ap = self.uniform("AdamParams", offset=offset, n=n, phase=0, **const)
+            self.dispatch(enc, grid(self.groups(n), max_dim), dict(ap=ap, **bufs), profiler)
+            return
+        # ranges of at most cap - 256 bytes, each bound from the 256-byte boundary below it
+        align = int(self.ctx.limits["min-storage-buffer-offset-alignment"])
+        per = (cap - align) // 4
+        for start in range(offset, offset + n, per):
+            count = min(per, offset + n - start)
+            first = 4 * start // align * align
+            within = start - first // 4
+            ap = self.uniform("AdamParams", offset=within, n=count, phase=(start - offset) % max(period, 1), **const)
+            size = 4 * (within + count)
+            self.dispatch(enc, grid(self.groups(count), max_dim),
+                          dict(ap=ap, **{key: Slice(b, first, size) for key, b in bufs.items()}), profiler)
 
 
 __all__ = ["TrainActivate", "TrainGrads", "OpacityReg", "OpacityRegGradient", "Adam"]

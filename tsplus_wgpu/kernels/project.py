@@ -5,6 +5,7 @@ the project, bin and blend kernels read."""
 from __future__ import annotations
 
 from ..gpu import Stage
+from ..gpu.chunks import item_chunks, item_slice
 from ..gpu.wgsl import constant
 
 
@@ -25,12 +26,27 @@ def frame_params(stage, camera, sigma, background=(0.0, 0.0, 0.0), near=0.01, nu
 
 
 class ShToColor(Stage):
-    """Per vertex: ``colors[v] = (max(0, SH(dir_v) + 0.5), 1)``."""
+    """Per vertex: ``colors[v] = (max(0, SH(dir_v) + 0.5), 1)``; in chunks of vertices where the
+    SH ``[N, K, 3]`` are larger than one storage binding (:mod:`tsplus_wgpu.gpu.chunks`)."""
     stage = "sh_to_color"
 
-    def __call__(self, enc, params, positions, sh, colors, num_vertices, profiler=None):
-        self.dispatch(enc, self.groups(num_vertices),
-                      dict(params=params, positions=positions, sh_coeffs=sh, colors=colors), profiler)
+    def __call__(self, enc, params, positions, sh, colors, num_vertices, profiler=None, sh_size=None):
+        """``sh_size``: K (default: from the buffer's size, ``sh.size // (12 N)``)."""
+        n = int(num_vertices)
+        k = int(sh_size) if sh_size is not None else max(1, sh.size // max(12 * n, 1))
+        per_vertex(self, enc, n, dict(positions=(positions, 12), sh_coeffs=(sh, 12 * k), colors=(colors, 16)),
+                   dict(params=params), profiler)
+
+
+def per_vertex(stage, enc, n, arrays, fixed, profiler=None):
+    """Dispatch ``stage`` over ``n`` items: ``arrays`` ``{binding: (buffer, bytes per item)}``
+    bound one range of items at a time where any is larger than a binding (``items``: that
+    range's count), ``fixed`` ``{binding: buffer}`` bound whole."""
+    chunks = item_chunks(stage.ctx, n, [w for _, w in arrays.values()])
+    for start, count in chunks:
+        items = stage.uniform("ItemRange", count=count)
+        bound = {key: b if len(chunks) == 1 else item_slice(b, start, count, w) for key, (b, w) in arrays.items()}
+        stage.dispatch(enc, stage.groups(count), dict(fixed, items=items, **bound), profiler)
 
 
 class ProjectTriangles(Stage):

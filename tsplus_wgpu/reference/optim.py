@@ -20,26 +20,26 @@ def sigmoid(w):
     return np.where(w >= 0, 1.0 / (1.0 + e), e / (1.0 + e))
 
 
-def train_activate(sh_planar, logits, floor, floor_old=None, eps=REINVERT_EPS):
-    """Returns ``(sh [N, K, 3], opacity [N], logits [N])`` in float64 (logits re-inverted
-    when ``floor_old`` is given)."""
-    sp = np.asarray(sh_planar, np.float64)
+def train_activate(logits, floor, floor_old=None, eps=REINVERT_EPS):
+    """Returns ``(opacity [N], logits [N])`` in float64 (logits re-inverted when ``floor_old``
+    is given)."""
     w = np.asarray(logits, np.float64)
     if floor_old is not None:
         o_old = floor_old + (1.0 - floor_old) * sigmoid(w)
         q = np.clip((o_old - floor) / (1.0 - floor), eps, 1.0 - eps)
         w = np.log(q) - np.log1p(-q)
-    return sp.transpose(1, 0, 2).copy(), floor + (1.0 - floor) * sigmoid(w), w
+    return floor + (1.0 - floor) * sigmoid(w), w
 
 
 def train_grads(logits, v_sh, v_opacity, floor, active_k, reg=None):
-    """Returns ``(v_sh_planar [K, N, 3], v_logits [N])`` in float64."""
+    """Returns ``(v_sh [N, K, 3] with the bands from active_k on zeroed, v_logits [N])`` in
+    float64."""
     w = np.asarray(logits, np.float64)
     s = sigmoid(w)
     vo = np.asarray(v_opacity, np.float64) + (0.0 if reg is None else np.asarray(reg, np.float64))
-    vsp = np.asarray(v_sh, np.float64).transpose(1, 0, 2).copy()
-    vsp[int(active_k):] = 0.0
-    return vsp, vo * (1.0 - floor) * s * (1.0 - s)
+    vs = np.asarray(v_sh, np.float64).copy()
+    vs[:, int(active_k):] = 0.0
+    return vs, vo * (1.0 - floor) * s * (1.0 - s)
 
 
 def min_corner(tri, op):

@@ -182,14 +182,15 @@ class BackwardPass:
         m, n, k = model.num_triangles, model.num_vertices, model.sh_size
         pair_windows(result.num_pairs, result.max_tile_pairs, self.window_capacity())   # a tile over a window
         for name, nbytes in (("backward triangle statistics", 4 * NSTAT * m),
-                             ("backward corner gradients", 32 * 3 * m), ("v_sh", 12 * n * k)):
+                             ("backward corner gradients", 32 * 3 * m)):
             self.ctx.check_size(name, nbytes)
+        self.ctx.check_size("v_sh", 12 * n * k, chunked=True)   # bound a range of vertices at a time
 
     def _outputs(self, out, n, k):
         """The gradient buffers: the caller's (checked) or new ones."""
         c = self.ctx
         if out is None:
-            return dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh"),
+            return dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh", chunked=True),
                         v_opacity=c.buffer(4 * n, "v_opacity"))
         for key, nbytes in (("v_positions", 12 * n), ("v_sh", 12 * n * k), ("v_opacity", 4 * n)):
             if key not in out or out[key].size < nbytes:
@@ -251,7 +252,7 @@ class BackwardPass:
                                "corner_sum")
         flush("corner_sum")
         self.vertex(rec.encoder, params, dev["positions"], dev["sh"], buf["vertex_sums"], out["v_positions"],
-                    out["v_sh"], out["v_opacity"], n, prof)
+                    out["v_sh"], out["v_opacity"], n, prof, model.sh_size)
         rec.submit("vertex_backward")
         return buf
 

@@ -189,7 +189,7 @@ class Renderer:
         return dict(
             positions=c.upload(model.positions.astype(np.float32), "positions"),
             triangles=c.upload(model.triangles.astype(np.uint32), "triangles"),
-            sh=c.upload(model.sh.astype(np.float32), "sh"),
+            sh=c.upload(model.sh.astype(np.float32), "sh", chunked=True),   # a range of vertices a binding
             opacity=c.upload(model.opacity.astype(np.float32), "opacity"),
         )
 
@@ -257,9 +257,10 @@ class Renderer:
         c = self.ctx
         h, w = camera.height, camera.width
         tx, ty, _ = self.tiles(camera)
-        for name, nbytes in (("image", 12 * h * w), ("triangles", 12 * m), ("sh", 12 * n * model.sh_size),
+        for name, nbytes in (("image", 12 * h * w), ("triangles", 12 * m),
                              ("projected triangles", self.tri2d_dtype.itemsize * m)):
             c.check_size(name, nbytes)
+        c.check_size("sh", 12 * n * model.sh_size, chunked=True)   # bound a range of vertices at a time
         # binning loops over one row of tiles per invocation (lavapipe's loop budget)
         if tx > MAX_TILES_PER_ROW or ty > c.limits["max-compute-workgroups-per-dimension"]:
             raise ValueError(f"camera: {w}x{h} is too large; width up to {TILE * MAX_TILES_PER_ROW} px and height up "
@@ -282,7 +283,7 @@ class Renderer:
             max_tile_pairs=alloc(16, "max_tile_pairs"),
         )
         rec.start()
-        self.sh_to_color(rec.encoder, params, dev["positions"], dev["sh"], b["colors"], n, prof)
+        self.sh_to_color(rec.encoder, params, dev["positions"], dev["sh"], b["colors"], n, prof, model.sh_size)
         flush("sh_to_color")
         self.project(rec.encoder, params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"],
                      b["tris"], b["pixel_rects"], b["depth_keys"], b["tri_ids"], m, prof)

@@ -123,13 +123,14 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
     Pw = P if pair_window is None else min(P, int(pair_window))      # the backward's window
     V, T, X, Q, O = "vertex", "triangle", "pixel", "pair", "other"
     out = [(V, name, _buf(b)) for name, b in (
-        # Trainer.set_state: parameters and Adam moments (positions double as the render's)
+        # Trainer.set_state: parameters and Adam moments (positions and SH double as the
+        # render's; v_sh is the SH's gradient)
         ("positions", 12 * n), ("exp_avg_positions", 12 * n), ("exp_avg_sq_positions", 12 * n),
-        ("sh_planar", 12 * n * k), ("exp_avg_sh", 12 * n * k), ("exp_avg_sq_sh", 12 * n * k),
+        ("sh", 12 * n * k), ("exp_avg_sh", 12 * n * k), ("exp_avg_sq_sh", 12 * n * k),
         ("logits", 4 * n), ("exp_avg_logits", 4 * n), ("exp_avg_sq_logits", 4 * n),
-        ("render_sh", 12 * n * k), ("render_opacity", 4 * n),
+        ("render_opacity", 4 * n),
         ("v_positions", 12 * n), ("v_sh", 12 * n * k), ("v_opacity", 4 * n),
-        ("v_sh_planar", 12 * n * k), ("v_logits", 4 * n), ("opacity_reg_vertex", 16 * n),
+        ("v_logits", 4 * n), ("opacity_reg_vertex", 16 * n),
         ("colors", 16 * n), ("vertex_sums", 32 * n))]           # forward, backward
     out += [(T, name, _buf(b)) for name, b in (
         ("triangles", 12 * m), ("opacity_reg_corners", 48 * m), ("opacity_reg_keys", 12 * m),
@@ -174,21 +175,27 @@ def training_bytes(num_vertices, num_triangles, sh_degree, width, height, pairs,
     return out
 
 
+#: the buffers bound a range of vertices at a time (``gpu/chunks.py``): each must fit one
+#: buffer, not one binding
+CHUNKED = ("sh", "exp_avg_sh", "exp_avg_sq_sh", "v_sh")
+
+
 def largest_model(memory_bytes, sh_degree, width, height, pairs_per_pixel, triangles_per_vertex, supersample=1,
-                  views=1, max_binding=None):
+                  views=1, max_binding=None, max_buffer=2**31 - 256):
     """The most vertices whose training fits ``memory_bytes`` of device memory, for a model with
     ``triangles_per_vertex`` triangles a vertex whose views give ``pairs_per_pixel`` tile-triangle
     pairs per rendered pixel (at ``supersample``; the arguments of :func:`training_buffers`).
     With ``max_binding`` (bytes) every single buffer must also fit one storage binding (WebGPU's
-    default: 128 MiB), and the backward takes the pairs in windows of one binding. Returns 0
-    when not even one vertex fits."""
+    default: 128 MiB), but those of :data:`CHUNKED` one buffer of ``max_buffer`` bytes, and the
+    backward takes the pairs in windows of one binding. Returns 0 when not even one vertex fits."""
     pairs = int(round(float(pairs_per_pixel) * width * height * supersample ** 2))
     window = None if max_binding is None else int(max_binding) // (4 * _consts()["nstat"])
 
     def fits(n):
         bufs = training_buffers(n, int(round(n * float(triangles_per_vertex))), sh_degree, width, height, pairs,
                                 supersample, views=views, pair_window=window)
-        if max_binding is not None and max(b for _, _, b in bufs) > max_binding:
+        if max_binding is not None and any(b > (max_buffer if name in CHUNKED else max_binding)
+                                           for _, name, b in bufs):
             return False
         return sum(b for _, _, b in bufs) <= memory_bytes
 
@@ -201,4 +208,4 @@ def largest_model(memory_bytes, sh_degree, width, height, pairs_per_pixel, trian
     return lo
 
 
-__all__ = ["FAMILIES", "training_buffers", "training_bytes", "largest_model"]
+__all__ = ["CHUNKED", "FAMILIES", "training_buffers", "training_bytes", "largest_model"]

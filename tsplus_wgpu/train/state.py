@@ -6,8 +6,9 @@ the triangles that index them, and the topology's per-triangle running max blend
 :meth:`~.trainer.Trainer.set_state` re-creates the device buffers from it; the topology
 operations (:mod:`.strategy.ops`) map a state to a new one.
 
-The device keeps the SH and its moments planar (``[K, N, 3]``, band-major) and every moment
-flat; :meth:`VertexState.from_flat` and :meth:`VertexState.flat` convert between the two.
+A checkpoint keeps the SH and their moments planar (``[K, N, 3]``, band-major) and every moment
+flat (:meth:`VertexState.from_flat` reads that); the device keeps the SH as the renderer reads
+them, ``[N, K, 3]``, with flat moments (:meth:`VertexState.flat`).
 """
 
 from __future__ import annotations
@@ -106,13 +107,11 @@ class VertexState:
 
     def flat(self, key):
         """Parameter ``key`` and its moments in the device layout: ``(param, exp_avg,
-        exp_avg_sq)`` float32, the SH planar ``[K, N, 3]``, moments flat."""
-        def dev(a):
-            a = np.asarray(a, np.float32)
-            return a.transpose(1, 0, 2) if key == "sh" else a
+        exp_avg_sq)`` float32, the parameter in its own shape (the SH ``[N, K, 3]``), moments
+        flat in the same order."""
         m1, m2 = (getattr(self, f"{mom}_{key}") for mom in MOMENTS)
-        return (np.ascontiguousarray(dev(getattr(self, key))), np.ascontiguousarray(dev(m1)).ravel(),
-                np.ascontiguousarray(dev(m2)).ravel())
+        return (np.ascontiguousarray(getattr(self, key), np.float32),
+                np.ascontiguousarray(m1, np.float32).ravel(), np.ascontiguousarray(m2, np.float32).ravel())
 
     # ------------------------------------------------------------------ row operations
     def astype(self, dtype):

@@ -140,27 +140,29 @@ class Trainer:
         self.triangles_host = np.asarray(state.triangles, np.int64)
         #: per-triangle groups (None: all ordinary; :mod:`.shell`), host only: the prunes read them
         self.groups = None if state.groups is None else np.asarray(state.groups, np.int8)
-        # positions, triangles and the renderer-layout SH double as vertex / index buffers: the
-        # live viewer (tsplus train --view) draws them as they are, no copy
+        # positions, triangles and the SH double as vertex / index buffers: the live viewer
+        # (tsplus train --view) draws them as they are, no copy. The SH parameters are in the
+        # renderer's [N, K, 3] layout: the renderer reads them, and their gradient is the
+        # renderer's v_sh. They, their moments and v_sh may be larger than one storage binding
+        # (bound a range of vertices at a time: gpu/chunks.py).
         import wgpu
         rw = wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST
-        usage = dict(positions=rw | wgpu.BufferUsage.VERTEX, sh=None, logits=None)
+        usage = dict(positions=rw | wgpu.BufferUsage.VERTEX, sh=rw | wgpu.BufferUsage.VERTEX, logits=None)
         self.params, self.moments = {}, {}
         for key in PARAMS:
             param, m1, m2 = state.flat(key)
-            name = "sh_planar" if key == "sh" else key
-            self.params[key] = c.upload(param, name, usage=usage[key])
-            self.moments[key] = (c.upload(m1, f"exp_avg_{key}"), c.upload(m2, f"exp_avg_sq_{key}"))
+            big = key == "sh"
+            self.params[key] = c.upload(param, key, usage=usage[key], chunked=big)
+            self.moments[key] = (c.upload(m1, f"exp_avg_{key}", chunked=big),
+                                 c.upload(m2, f"exp_avg_sq_{key}", chunked=big))
         self.sizes = dict(positions=3 * n, sh=3 * n * k, logits=n)
         tris = c.upload(self.triangles_host.astype(np.uint32), "triangles", usage=rw | wgpu.BufferUsage.INDEX)
-        render = dict(positions=self.params["positions"], triangles=tris,
-                      sh=c.buffer(12 * n * k, "render_sh", usage=rw | wgpu.BufferUsage.VERTEX),
+        render = dict(positions=self.params["positions"], triangles=tris, sh=self.params["sh"],
                       opacity=c.buffer(4 * n, "render_opacity"))
         self.model = DeviceModel(c, render, n, m, k)
-        self.gbuf = dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh"),
+        self.gbuf = dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh", chunked=True),
                          v_opacity=c.buffer(4 * n, "v_opacity"))
-        self.pgrad = dict(positions=self.gbuf["v_positions"], sh=c.buffer(12 * n * k, "v_sh_planar"),
-                          logits=c.buffer(4 * n, "v_logits"))
+        self.pgrad = dict(positions=self.gbuf["v_positions"], sh=self.gbuf["v_sh"], logits=c.buffer(4 * n, "v_logits"))
         self.reg_vals = c.buffer(16 * 3 * m, "opacity_reg_corners")
         self.reg_out = c.buffer(16 * n, "opacity_reg_vertex")
         self.reg.set_topology(self.triangles_host)
@@ -172,8 +174,7 @@ class Trainer:
 
     def _activate(self, floor, floor_old=None):
         enc = self.ctx.device.create_command_encoder()
-        self.activate(enc, self.params["sh"], self.params["logits"], self.model.buffers["sh"],
-                      self.model.buffers["opacity"], self.n, self.k, floor, floor_old)
+        self.activate(enc, self.params["logits"], self.model.buffers["opacity"], self.n, floor, floor_old)
         self.ctx.queue.submit([enc.finish()])
 
     def _target(self, view):
@@ -299,16 +300,16 @@ class Trainer:
                             self.reg_out, reg_w, profiler=op)
         active_k = min(self.k, (s.sh_degree(it) + 1) ** 2)
         self.grads(enc, self.params["logits"], self.gbuf["v_sh"], self.gbuf["v_opacity"], self.reg_out,
-                   self.pgrad["sh"], self.pgrad["logits"], self.n, self.k, active_k, floor, reg_w > 0, profiler=op)
+                   self.pgrad["logits"], self.n, self.k, active_k, floor, reg_w > 0, profiler=op)
         lr = s.learning_rates(it)
-        n = self.n
-        groups = (("positions", lr["positions"], 0, 3 * n), ("sh", lr["sh_dc"], 0, 3 * n),
-                  ("sh", lr["sh_rest"], 3 * n, 3 * n * (self.k - 1)), ("logits", lr["opacity"], 0, n))
-        for key, rate, off, size in groups:
+        n, k = self.n, self.k
+        # the SH [N, K, 3]: the first 3 floats of every vertex's 3K are its DC (lr sh_dc), the rest sh_rest
+        groups = (("positions", dict(lr=lr["positions"]), 3 * n), ("logits", dict(lr=lr["opacity"]), n),
+                  ("sh", dict(lr=lr["sh_dc"], lr_tail=lr["sh_rest"], period=3 * k, head=3), 3 * n * k))
+        for key, rates, size in groups:
             m1, m2 = self.moments[key]
-            self.adam.record(enc, self.params[key], self.pgrad[key], m1, m2, size, rate, it, offset=off, profiler=op)
-        self.activate(enc, self.params["sh"], self.params["logits"], self.model.buffers["sh"],
-                      self.model.buffers["opacity"], n, self.k, floor, profiler=op)
+            self.adam.record(enc, self.params[key], self.pgrad[key], m1, m2, size, step=it, profiler=op, **rates)
+        self.activate(enc, self.params["logits"], self.model.buffers["opacity"], n, floor, profiler=op)
         if sp is not None:        # the topology's per-step work in a submit of its own
             c.queue.submit([enc.finish()])
             sp.mark("optimizer")
@@ -386,14 +387,17 @@ class Trainer:
         c = self.ctx
         arrays = dict(
             positions=c.read(self.params["positions"], np.float32, 3 * self.n).reshape(self.n, 3),
-            sh_planar=c.read(self.params["sh"], np.float32, 3 * self.n * self.k).reshape(self.k, self.n, 3),
+            sh_planar=np.ascontiguousarray(   # the checkpoint's layout: planar [K, N, 3]
+                c.read(self.params["sh"], np.float32, 3 * self.n * self.k).reshape(self.n, self.k, 3).transpose(1, 0, 2)),
             logits=c.read(self.params["logits"], np.float32, self.n),
             triangles=self.triangles_host.astype(np.int64),
         )
         for key, size in self.sizes.items():
-            m1, m2 = self.moments[key]
-            arrays[f"exp_avg_{key}"] = c.read(m1, np.float32, size)
-            arrays[f"exp_avg_sq_{key}"] = c.read(m2, np.float32, size)
+            for mom, buf in zip(("exp_avg", "exp_avg_sq"), self.moments[key]):
+                a = c.read(buf, np.float32, size)
+                if key == "sh":   # planar in the checkpoint, as the SH
+                    a = a.reshape(self.n, self.k, 3).transpose(1, 0, 2).ravel()
+                arrays[f"{mom}_{key}"] = a
         return arrays
 
     def topology_arrays(self):

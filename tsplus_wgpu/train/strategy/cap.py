@@ -10,17 +10,20 @@ Vertices: three bounds, the smallest applies.
   images (its scenes end near 2M), hence the default 2.0. Without it, lund (29 photos, quick,
   ``--downscale 4``: 237x178, 42k pixels per image) densified from 1,477 to 658,115 vertices by
   iteration 1,100, more than 15 per pixel, and the run died on the storage-binding limit.
-* The device's **storage-binding limit**: the largest per-vertex buffers (``sh_planar``, the
-  renderer's SH and their gradient: ``12 K`` bytes a vertex, K = 16 at SH degree 3) must each
-  fit one binding. WebGPU's default 128 MiB holds 699,050 vertices at degree 3.
+* The device's **buffer and binding limits**: the SH, their Adam moments and their gradient
+  (``12 K`` bytes a vertex, K = 16 at SH degree 3) are bound a range of vertices at a time
+  (``gpu/chunks.py``), so each must fit one *buffer* (2 GiB on llvmpipe: 11.2 M vertices;
+  WebGPU's default 256 MiB: 1,398,101); the backward's vertex sums (32 bytes a vertex, written
+  by vertex index) must fit one *binding* (4,194,304 vertices at 128 MiB). Until 2026-11-27 the
+  SH had to fit one binding: 699,050 vertices at degree 3 and 128 MiB.
 
 Triangles: the storage-binding limit too. The largest per-triangle buffers (the projected
 triangle record ``Tri2D`` and the backward's corner gradients, 96 bytes a triangle each) bind
 before the SH once a model has more than 2 triangles per vertex, which Delaunay models have (a
 fresh one about 12), so a split is never made that would take the triangles past what one
 binding holds (1,398,101 at 128 MiB). With both bounds, densification alone can never make the
-renderer refuse the model. (The SH of lund's 658,115 vertices, 120.5 MiB, were still under the
-limit.) The per-pair buffers of a view are not bounded here: they depend on how many tiles each
+renderer refuse the model. (The SH of lund's 658,115 vertices, 120.5 MiB, were then still under the
+binding limit.) The per-pair buffers of a view are not bounded here: they depend on how many tiles each
 triangle covers.
 """
 
@@ -35,12 +38,15 @@ from ...gpu.wgsl import load_wgsl
 
 #: bytes of the backward's gradients per triangle corner (``render/backward.py``: corner_grads)
 CORNER_GRAD_BYTES = 32
+#: bytes of the backward's per-vertex sums (``render/backward.py``: vertex_sums), the widest
+#: per-vertex buffer bound whole
+VERTEX_SUM_BYTES = 32
 
 
 @dataclass(frozen=True)
 class VertexCap:
     """The densification cap: ``vertices``, the ``bound`` that sets it (``"max-vertices"``,
-    ``"vertex budget"`` or ``"storage-binding limit"``), ``detail`` (what the cap is, for the
+    ``"vertex budget"``, ``"buffer-size limit"`` or ``"storage-binding limit"``), ``detail`` (what the cap is, for the
     densify_stop reason; default the number), ``why`` (one sentence for ``tsplus train``),
     ``triangles`` (the most triangles one storage binding holds; None: no bound) and ``inputs``
     (the numbers it came from, for ``log.jsonl``)."""
@@ -99,15 +105,23 @@ def vertex_cap(config, cameras, limits=None):
     if limits is None:
         return VertexCap(vertices, bound, detail, why, None, inputs)
     binding = min(int(limits["max-storage-buffer-binding-size"]), int(limits["max-buffer-size"]))
+    buffer = int(limits["max-buffer-size"])
     per_vertex, per_triangle = 12 * (int(config.sh_degree) + 1) ** 2, triangle_bytes()
-    fit = binding // per_vertex
-    inputs.update(storage_binding_bytes=binding, sh_bytes_per_vertex=per_vertex, triangle_bytes=per_triangle)
-    if vertices > fit:
-        why = (f"{'the vertex budget' if bound == 'vertex budget' else '--max-vertices'} allows {vertices:,} "
-               f"vertices, but their SH ({per_vertex} bytes a vertex) would need {_mib(vertices * per_vertex)}, over "
-               f"this device's {_mib(binding)} storage-binding limit")
-        vertices, bound = fit, "storage-binding limit"
-        detail = f"{fit:,}, the most vertices whose SH fit one {_mib(binding)} binding"
+    fit_sh, fit_sums = buffer // per_vertex, binding // VERTEX_SUM_BYTES
+    inputs.update(storage_binding_bytes=binding, buffer_bytes=buffer, sh_bytes_per_vertex=per_vertex,
+                  triangle_bytes=per_triangle)
+    allows = f"{'the vertex budget' if bound == 'vertex budget' else '--max-vertices'} allows {vertices:,} vertices"
+    if vertices > min(fit_sh, fit_sums):
+        if fit_sh <= fit_sums:
+            why = (f"{allows}, but their SH ({per_vertex} bytes a vertex) would need {_mib(vertices * per_vertex)}, "
+                   f"over this device's {_mib(buffer)} buffer-size limit")
+            vertices, bound = fit_sh, "buffer-size limit"
+            detail = f"{fit_sh:,}, the most vertices whose SH fit one {_mib(buffer)} buffer"
+        else:
+            why = (f"{allows}, but the backward's vertex sums ({VERTEX_SUM_BYTES} bytes a vertex) would need "
+                   f"{_mib(vertices * VERTEX_SUM_BYTES)}, over this device's {_mib(binding)} storage-binding limit")
+            vertices, bound = fit_sums, "storage-binding limit"
+            detail = f"{fit_sums:,}, the most vertices whose sums fit one {_mib(binding)} binding"
     return VertexCap(vertices, bound, detail, why, binding // per_triangle, inputs)
 
 
