@@ -20,6 +20,10 @@
 @group(0) @binding(6) var<storage, read> pixel_rects: array<vec4<i32>>;  // [M]
 @group(0) @binding(7) var<storage, read> tri_stats: array<f32>;          // [M, NSTAT]
 @group(0) @binding(8) var<storage, read_write> corner_grads: array<vec4<f32>>;  // [3 M, 2]
+// The per-triangle records may outgrow one binding: then one dispatch per range of triangles
+// [items.first, items.first + items.count), tris, tri_stats and corner_grads bound to that
+// range (tsplus_wgpu.gpu.chunks); the triangle's own index t indexes the rest.
+@group(0) @binding(9) var<uniform> items: ItemRange;
 
 fn cross2(a: vec2<f32>, b: vec2<f32>) -> f32 {
     return a.x * b.y - a.y * b.x;
@@ -30,10 +34,11 @@ const WG: u32 = 256u;   // invocations per workgroup
 @compute @workgroup_size(WG)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
-    let t = linear_group(wid, nwg) * WG + li;
-    if (t >= params.num_triangles) {
+    let l = linear_group(wid, nwg) * WG + li;
+    if (l >= items.count) {
         return;
     }
+    let t = items.first + l;
     var out_c: array<vec3<f32>, 3>;
     var out_x: array<vec3<f32>, 3>;
     var out_o: array<f32, 3>;
@@ -41,9 +46,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if (rect.x <= rect.z && rect.y <= rect.w) {
         var S: array<f32, NSTAT>;
         for (var q = 0u; q < NSTAT; q++) {
-            S[q] = tri_stats[t * NSTAT + q];
+            S[q] = tri_stats[l * NSTAT + q];
         }
-        let origin = tris[t].s;
+        let origin = tris[l].s;
         var vid: array<u32, 3>;
         var xc: array<vec3<f32>, 3>;
         var A: array<vec2<f32>, 3>;
@@ -120,7 +125,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         out_o[best] = S[18];
     }
     for (var k = 0u; k < 3u; k++) {
-        corner_grads[2u * (3u * t + k)] = vec4<f32>(out_c[k], out_o[k]);
-        corner_grads[2u * (3u * t + k) + 1u] = vec4<f32>(out_x[k], 0.0);
+        corner_grads[2u * (3u * l + k)] = vec4<f32>(out_c[k], out_o[k]);
+        corner_grads[2u * (3u * l + k) + 1u] = vec4<f32>(out_x[k], 0.0);
     }
 }

@@ -34,6 +34,10 @@ struct PassParams {
     round_end: u32,     // stops any invocation's loops after 65535 iterations in total
     pair_lo: u32,       // the pair window: only tiles whose first pair is in [pair_lo, pair_hi)
     pair_hi: u32,       // replay, and pair p's statistics go to partials[p - pair_lo]
+    gathered: u32,      // 1: tris holds the window's records in pair order (gather_tris), pair p's
+    _pad0: u32,         // at p - pair_lo (the projected triangles outgrow one binding)
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: FrameParams;
@@ -201,7 +205,7 @@ fn evals4(q: Px4, lo: u32, hi: u32) -> u32 {
 // Stage the sorted pair k (if it exists) into slot `slot` of `staged`; clear its mask.
 fn stage(slot: u32, k: u32, end: u32) {
     if (k < end) {
-        let base = 6u * pair_tris[k];   // Tri2D: (s, opacity, tau), (g0, g1), (g2, depth, inradius), c, cx, cy
+        let base = 6u * select(pair_tris[k], k - pp.pair_lo, pp.gathered != 0u);   // Tri2D: (s, opacity, tau), (g0, g1), (g2, depth, inradius), c, cx, cy
         let t0 = tris[base];
         let t1 = tris[base + 1u];
         let t2 = tris[base + 2u];

@@ -6,7 +6,10 @@
 #import triangle
 
 @group(0) @binding(0) var<uniform> params: FrameParams;
-@group(0) @binding(1) var<storage, read> tris: array<Tri2D>;          // [M]
+@group(0) @binding(1) var<storage, read> tris: array<Tri2D>;          // [page.count]: triangles page.first..
+// The projected triangles may outgrow one binding: then one dispatch per page of them, each
+// doing the items of its page's triangles only (tsplus_wgpu.gpu.chunks).
+@group(0) @binding(9) var<uniform> page: ItemRange;
 @group(0) @binding(2) var<storage, read> pixel_rects: array<vec4<i32>>; // [M]
 @group(0) @binding(3) var<storage, read> tri_from_rank: array<u32>;   // [M]
 @group(0) @binding(4) var<storage, read> row_offsets: array<u32>;     // [M] by rank
@@ -26,8 +29,11 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     }
     let j = item_rank[q];
     let t = tri_from_rank[j];
+    if (t - page.first >= page.count) {   // another page's triangle (t < first wraps)
+        return;
+    }
     let rect = pixel_rects[t];
-    let tri = tris[t];
+    let tri = tris[t - page.first];
     let ty = rect.y / i32(TILE) + i32(q - row_offsets[j]);
     var o = offsets[q];
     for (var tx = rect.x / i32(TILE); tx <= rect.z / i32(TILE); tx++) {

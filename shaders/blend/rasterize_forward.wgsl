@@ -29,12 +29,19 @@ struct BlendPass {
     end: u32,
     first: u32,   // 1: no state to resume
     last: u32,    // 1: write the final outputs
+    // Where the projected triangles outgrow one binding (gathered = 1), the pairs go in windows
+    // of whole tiles: only the tiles whose first pair is in [pair_lo, pair_hi) are done, and
+    // tris holds the window's records in pair order (gather_tris): pair p's at p - pair_lo.
+    pair_lo: u32,
+    pair_hi: u32,
+    gathered: u32,
+    _pad0: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: FrameParams;
 @group(0) @binding(1) var<storage, read> ranges: array<vec2<u32>>;   // [tiles]
 @group(0) @binding(2) var<storage, read> pair_tris: array<u32>;      // [P] sorted
-@group(0) @binding(3) var<storage, read> tris: array<Tri2D>;         // [M]
+@group(0) @binding(3) var<storage, read> tris: array<Tri2D>;         // [M], or [window] when gathered
 @group(0) @binding(4) var<storage, read_write> image: array<f32>;    // [H, W, 3]
 @group(0) @binding(5) var<storage, read_write> final_t: array<f32>;  // [H, W]
 // [H, W] (last, evaluated); with TRIANGLE_IDS (best triangle, best weight bits)
@@ -140,6 +147,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     let row0 = wid.y * TILE;
     let tile = wid.y * params.tiles_x + wid.x;
     let range = ranges[tile];
+    if (range.x < pass_.pair_lo || range.x >= pass_.pair_hi) {   // another window's tile (uniform)
+        return;
+    }
     let x = f32(px) + 0.5;
     let sigma = params.sigma;
 
@@ -202,7 +212,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         let count = min(BATCH, hi - first);
         for (var h = li; h < count; h += THREADS) {
             let id = pair_tris[first + h];
-            let t = tris[id];
+            let t = tris[select(id, first + h - pass_.pair_lo, pass_.gathered != 0u)];
             batch_ids[h] = id;
             staged[6u * h] = vec4<f32>(t.s, t.opacity, t.tau);
             staged[6u * h + 1u] = vec4<f32>(t.g0, t.g1);

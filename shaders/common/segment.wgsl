@@ -17,6 +17,13 @@ struct SegParams {
     width: u32,    // vec4s per element: 1, 2 or 5
     gather: u32,   // 1: level 0, values through index
     top: u32,      // 1: coarsest level (n <= CHUNK), every run start writes its whole run
+    // Arrays larger than one storage binding, bound a page at a time (tsplus_wgpu.gpu.chunks):
+    // vals_in holds the values [val_lo, val_hi) of the gather (the others count 0: a sum over
+    // pages adds the passes), out the keys [key_lo, key_hi) (the others are not written).
+    val_lo: u32,
+    val_hi: u32,
+    key_lo: u32,
+    key_hi: u32,
 }
 
 const CHUNK: u32 = 64u;
@@ -40,6 +47,10 @@ fn seg_run(sp: SegParams, i: u32, end: u32, key: u32) -> Sum5 {
         var base = e;
         if (sp.gather != 0u) {
             base = index[e];
+            if (base - sp.val_lo >= sp.val_hi - sp.val_lo) {
+                continue;   // another page's value (base < val_lo wraps)
+            }
+            base -= sp.val_lo;
         }
         base *= sp.width;
         s.a += vals_in[base];

@@ -4,9 +4,11 @@
 // summed per vertex with the deterministic segmented sum (tsplus_wgpu.kernels.reduce.SegmentSum; twin: tsplus_wgpu.reference.optim.opacity_reg).
 #import dispatch
 
+// The corners may outgrow one binding: then one dispatch per range of triangles [first, first +
+// num_triangles), corner_vals bound to their corners (tsplus_wgpu.gpu.chunks).
 struct RegParams {
     num_triangles: u32,
-    _pad0: u32,
+    first: u32,
     _pad1: u32,
     _pad2: u32,
     per_triangle: f32,   // weight / M
@@ -23,10 +25,11 @@ struct RegParams {
 @compute @workgroup_size(256)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
-    let t = linear_group(wid, nwg) * 256u + li;
-    if (t >= rp.num_triangles) {
+    let l = linear_group(wid, nwg) * 256u + li;
+    if (l >= rp.num_triangles) {
         return;
     }
+    let t = rp.first + l;
     var vid: array<u32, 3>;
     var op: array<f32, 3>;
     for (var k = 0u; k < 3u; k++) {
@@ -41,6 +44,6 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         }
     }
     for (var k = 0u; k < 3u; k++) {
-        corner_vals[3u * t + k] = vec4<f32>(select(0.0, rp.per_triangle, k == best), 0.0, 0.0, 0.0);
+        corner_vals[3u * l + k] = vec4<f32>(select(0.0, rp.per_triangle, k == best), 0.0, 0.0, 0.0);
     }
 }

@@ -14,12 +14,15 @@
 @group(0) @binding(6) var<storage, read_write> pixel_rects: array<vec4<i32>>;  // [M]
 @group(0) @binding(7) var<storage, read_write> depth_keys: array<u32>; // [M]
 @group(0) @binding(8) var<storage, read_write> tri_ids: array<u32>;    // [M]
+// The projected triangles may outgrow one binding: then one dispatch per range of triangles
+// [items.first, items.first + items.count), tris bound to that range (tsplus_wgpu.gpu.chunks).
+@group(0) @binding(9) var<uniform> items: ItemRange;
 
 fn cull(t: u32) {
     pixel_rects[t] = vec4<i32>(1, 1, 0, 0);
     depth_keys[t] = 0xffffffffu;
     var z: Tri2D;
-    tris[t] = z;
+    tris[t - items.first] = z;
 }
 
 const THREADS: u32 = 256u;   // one item per invocation
@@ -27,10 +30,11 @@ const THREADS: u32 = 256u;   // one item per invocation
 @compute @workgroup_size(THREADS)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
-    let t = linear_group(wid, nwg) * THREADS + li;
-    if (t >= params.num_triangles) {
+    let local = linear_group(wid, nwg) * THREADS + li;
+    if (local >= items.count) {
         return;
     }
+    let t = items.first + local;
     tri_ids[t] = t;
     var p2: array<vec2<f32>, 3>;
     var zsum = 0.0;
@@ -117,7 +121,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         cull(t);
         return;
     }
-    tris[t] = tri;
+    tris[local] = tri;
     pixel_rects[t] = rect;
     depth_keys[t] = bitcast<u32>(tri.depth);   // positive floats order like their bits
 }

@@ -23,6 +23,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if (i > 0u && keys_in[i - 1u] == key) {
         return;   // not a run start
     }
+    if (key - sp.key_lo >= sp.key_hi - sp.key_lo) {
+        return;   // another page's key
+    }
     var end = sp.n;
     if (sp.top == 0u) {
         if (i % CHUNK == 0u) {
@@ -32,6 +35,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     }
     let s = seg_run(sp, i, end, key);
     for (var w = 0u; w < sp.width; w++) {
-        out[key * sp.width + w] = seg_get(s, w) + out[key * sp.width + w];
+        let o = (key - sp.key_lo) * sp.width + w;
+        out[o] = seg_get(s, w) + out[o];
     }
 }

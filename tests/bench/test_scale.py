@@ -72,3 +72,11 @@ def test_the_command_prints_and_writes_json(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         main(["bench-scale", "--vertices", "lots"])
     assert e.value.code == 2 and "--vertices: expected a vertex count" in capsys.readouterr().err
+
+
+def test_training_a_size_with_checkpoint_and_resume(renderer):
+    from tsplus_wgpu.bench.scale import scale_training
+    r = scale_training(renderer, 3000, 96, 64, iterations=6, views=3)
+    assert r["iteration"] == 6 and r["vertices"] > 2500 and r["triangles"] > 5000
+    assert r["loss_last"] < r["loss_first"]           # from shuffled DC colours towards the model's own renders
+    assert r["checkpoint_bytes"] > r["vertices"] * 16 * 12 and r["device_bytes_peak"] > 0

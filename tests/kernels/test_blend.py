@@ -7,7 +7,7 @@ within rounding of flipping (the twin's ``ambiguous``)."""
 
 import numpy as np
 import pytest
-from scenes import f32_exact, look_at_camera, random_scene
+from scenes import f32_exact, look_at_camera, random_scene, submit as _run
 
 from tsplus_wgpu import TriangleModel, reference
 from tsplus_wgpu.kernels.blend import RasterizeForward, RasterizeIds
@@ -252,3 +252,25 @@ def test_poisoned_buffers_give_the_same_ids(renderer):
     poisoned = Renderer(GpuContext(renderer.ctx.adapter, poison=True)).forward(model, cam, 0.3, triangle_ids=True)
     np.testing.assert_array_equal(poisoned.triangle_ids, clean.triangle_ids)
     np.testing.assert_array_equal(poisoned.triangle_id_weights, clean.triangle_id_weights)
+
+
+@pytest.mark.parametrize("m,lo,count,chunk", [(1, 0, 5, None), (1000, 0, 3000, None), (1000, 777, 2500, 2**13),
+                                              (5000, 123, 4000, 2**14)])
+def test_gather_tris(ctx, monkeypatch, m, lo, count, chunk):
+    """The window's records in pair order against the twin, bit for bit; with ``chunk`` the
+    records are read a page of triangles at a time (one dispatch a page)."""
+    import tsplus_wgpu.gpu.chunks as chunks
+    from tsplus_wgpu.kernels.blend import GatherTris
+    monkeypatch.setattr(chunks, "CHUNK_BYTES", chunk)
+    stage = GatherTris(ctx)
+    size = stage.src.structs["Tri2D"].itemsize                      # 96 bytes, moved as they are
+    rng = np.random.default_rng(m + count)
+    records = rng.normal(size=(m, size // 4)).astype(np.float32).view(np.uint32)   # finite floats
+    pair_tris = rng.integers(0, m, lo + count + 7).astype(np.uint32)
+    if chunk:
+        assert len(chunks.item_chunks(ctx, m, [size])) >= 3
+    out = ctx.buffer(size * count, "gathered")
+    _run(ctx, lambda enc: stage(enc, ctx.upload(pair_tris), ctx.upload(records, chunked=True), out, lo, count, m,
+                                size))
+    got = ctx.read(out, np.uint32, count * size // 4).reshape(count, size // 4)
+    np.testing.assert_array_equal(got, reference.gather_tris(records, pair_tris, lo, count))

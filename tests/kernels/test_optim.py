@@ -80,8 +80,12 @@ def test_opacity_reg(ctx, m):
     assert np.count_nonzero(got[:, 0]) == m                 # one corner per triangle (ties resolved)
 
 
-@pytest.mark.parametrize("m", [1, 50, 5000])
-def test_opacity_reg_gradient_matches_twin(ctx, m):
+@pytest.mark.parametrize("m,chunk", [(1, None), (50, None), (5000, None), (5000, 2**13)])
+def test_opacity_reg_gradient_matches_twin(ctx, monkeypatch, m, chunk):
+    """``chunk``: bindings of at most that many bytes: the corners in ranges of triangles and
+    their per-vertex sum a page of corners at a time."""
+    import tsplus_wgpu.gpu.chunks as chunks
+    monkeypatch.setattr(chunks, "CHUNK_BYTES", chunk)
     tri, op, n = _reg_case(m)
     reg = OpacityRegGradient(ctx, Scratch(ctx))
     reg.set_topology(tri)

@@ -95,3 +95,24 @@ def test_segment_sum(ctx, n, width, num_keys, run):
     np.testing.assert_allclose(want, plain, rtol=0, atol=1e-9)
     _close(got, want, vals, max(np.bincount(keys).max(initial=0), 1) if n else 1)
     np.testing.assert_array_equal(got, twin.segment_sum(keys, index, vals, n, width, num_keys, np.float32))
+
+
+@pytest.mark.parametrize("n,width,num_keys,chunk", [(20000, 2, 3000, 2**14), (9000, 5, 700, 2**13),
+                                                    (5000, 1, 600, 2**11)])
+def test_segment_sum_in_pages(ctx, monkeypatch, n, width, num_keys, chunk):
+    """Values and sums larger than one binding (forced to ``chunk`` bytes, gpu/chunks.py): one
+    pass per page of gathered values, each writing every page of keys through its own binding;
+    against the twin within float32 rounding (the order of the additions is per page)."""
+    import tsplus_wgpu.gpu.chunks as chunks
+    keys, index, vals = _segments(n + 7, n, width, num_keys)
+    num_keys = int(keys.max()) + 3
+    monkeypatch.setattr(chunks, "CHUNK_BYTES", chunk)
+    assert 16 * width * n > 2 * chunk and 16 * width * num_keys > chunk
+    ss = SegmentSum(ctx, Scratch(ctx), "test_sum_pages")
+    out = ctx.buffer(16 * width * num_keys, "out")
+    bufs = [ctx.upload(a, name) for a, name in ((keys, "keys"), (index, "index"), (vals, "vals"))]
+    _run(ctx, lambda enc: ss.record(enc, *bufs, n, width, out))
+    got = ctx.read(out, np.float32, 4 * width * num_keys).reshape(num_keys, width, 4)
+    want = twin.segment_sum(keys, index, vals, n, width, num_keys)
+    _close(got, want, vals, 4 * max(np.bincount(keys).max(), 1))
+    assert not np.any(got[int(keys.max()) + 1:])

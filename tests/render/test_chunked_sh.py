@@ -72,3 +72,83 @@ def test_sh_over_the_real_binding_limit(renderer):
     big, rows = _spread(model, n_big, 6)
     assert big.sh.nbytes > limit and rows[-1] > limit // 192
     _same(*_render_both(renderer, big, model, cam), rows)
+
+
+# ---------------------------------------------------------------- projected triangles past a binding
+
+
+def _forward_bits(renderer, model, cam, ids=True):
+    res = renderer.forward(model, cam, 0.5, triangle_ids=ids)
+    c, m, h, w = renderer.ctx, model.num_triangles, cam.height, cam.width
+    out = dict(image=res.image, t=res.transmittance,
+               n_contrib=c.read(res.buffers["n_contrib"], np.uint32, 2 * h * w),
+               max_weight=c.read(res.buffers["max_weight"], np.float32, m))
+    if ids:
+        out["ids"] = c.read(res.buffers["triangle_ids"], np.uint32, 2 * h * w)
+    return out, res
+
+
+@pytest.mark.parametrize("chunk", [2**15, 2**16])
+def test_forward_in_windows_of_gathered_triangles(renderer, monkeypatch, chunk):
+    """At bindings of ``chunk`` bytes the projected triangles go in pages (projection, binning)
+    and the blend and ID passes in windows of pairs reading gathered records: every output the
+    same bits as in one binding."""
+    model, cam = random_scene(21, 96, 72, sheets=4, points_per_sheet=120, sh_k=4)
+    want, res = _forward_bits(renderer, model, cam)
+    monkeypatch.setattr(chunks, "CHUNK_BYTES", chunk)
+    wins = renderer.tri_windows(model.num_triangles, res.num_pairs, res.max_tile_pairs)
+    assert wins is not None and len(wins) >= 2 and wins[-1][1] == 0xFFFFFFFF
+    assert len(chunks.item_chunks(renderer.ctx, model.num_triangles, [96])) >= 2
+    got, _ = _forward_bits(renderer, model, cam)
+    for key in want:
+        np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+
+
+def test_projected_triangles_over_the_real_binding_limit(renderer):
+    """1,450,000 triangles (139 MB of projected records, 133 MB of corner gradients, over
+    llvmpipe's 128 MiB binding): forward and backward as the visible ones alone (the others
+    behind the camera, culled), bit for bit."""
+    limit = min(renderer.ctx.limits["max-storage-buffer-binding-size"], renderer.ctx.limits["max-buffer-size"])
+    m_big = max(1_450_000, limit // 96 + 50_000)
+    if 96 * m_big > renderer.ctx.limits["max-buffer-size"] or 16 * m_big > limit:
+        pytest.skip("this adapter's buffers cannot hold the model")
+    model, cam = random_scene(22, 40, 32, sh_k=1)
+    n = model.num_vertices
+    behind = cam.center + 3.0 * (cam.center - np.zeros(3))          # a point behind the camera
+    pos = np.vstack([model.positions, behind[None]])
+    hidden = np.full((m_big - model.num_triangles, 3), n)            # every corner behind: culled
+    big = TriangleModel(pos, np.vstack([hidden, model.triangles]), np.vstack([model.sh, model.sh[:1]]),
+                        np.append(model.opacity, 0.5))
+    want, _ = _forward_bits(renderer, model, cam, ids=False)
+    got, res = _forward_bits(renderer, big, cam, ids=False)
+    for key in ("image", "t", "n_contrib"):
+        np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+    np.testing.assert_array_equal(got["max_weight"][-model.num_triangles:], want["max_weight"])
+    assert not np.any(got["max_weight"][:-model.num_triangles])
+    v = np.random.default_rng(4).normal(size=res.image.shape).astype(np.float32)
+    small = renderer.backward(renderer.forward(model, cam, 0.5), v)
+    g = renderer.backward(res, v)
+    for key in ("v_positions", "v_sh", "v_opacity"):
+        np.testing.assert_array_equal(getattr(g, key)[:n], getattr(small, key), err_msg=key)
+    assert not np.any(g.v_positions[n]) and not np.any(g.v_sh[n])
+
+
+@pytest.mark.parametrize("chunk", [2**15, 2**16])
+def test_backward_in_pages_of_triangles(renderer, monkeypatch, chunk):
+    """At bindings of ``chunk`` bytes the backward reads gathered records per window of pairs,
+    projects back a range of triangles at a time, sums the pairs' statistics into pages of
+    triangles and the corners' gradients a page of corners at a time (each page adding its
+    share): the gradients within 1e-5 of one binding's, which tests/render/test_backward.py
+    holds to the float64 twin (only the order of the corner sums differs)."""
+    model, cam = random_scene(23, 96, 72, sheets=4, points_per_sheet=120, sh_k=4)
+    v = np.random.default_rng(5).normal(size=(72, 96, 3)).astype(np.float32)
+    want = renderer.backward(renderer.forward(model, cam, 0.5), v)
+    monkeypatch.setattr(chunks, "CHUNK_BYTES", chunk)
+    m = model.num_triangles
+    assert m * 80 > chunk and len(chunks.item_chunks(renderer.ctx, 3 * m, [32])) >= 2
+    res = renderer.forward(model, cam, 0.5)
+    got = renderer.backward(res, v)
+    for key in ("v_positions", "v_sh", "v_opacity"):
+        a, b = getattr(got, key), getattr(want, key)
+        assert np.abs(a - b).max() <= 1e-5 * np.abs(b).max(), key
+        assert np.count_nonzero(a) == np.count_nonzero(b) > 0.5 * b.size, key

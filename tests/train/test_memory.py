@@ -110,11 +110,12 @@ def test_largest_model_is_the_most_that_fits():
     assert training_bytes(n, round(1.5 * n), 3, 960, 540, pairs)["total"] <= 8 * gib
     assert training_bytes(n + 1, round(1.5 * (n + 1)), 3, 960, 540, pairs)["total"] > 8 * gib
     assert largest_model(16 * gib, **args) > 2 * n - 10_000        # affine: twice the memory, about twice
-    # one storage binding of 128 MiB: the projected triangles (96 bytes a triangle, 1.5 a vertex)
-    # first; the SH (192 bytes a vertex at degree 3, bound in ranges) need one 2 GiB buffer only.
-    # Before the SH were bound in ranges, they came first: 2**27 // 192 = 699,050 vertices
-    n = largest_model(8 * gib, **args, max_binding=2**27)
-    assert round(1.5 * n) <= 2**27 // 96 < round(1.5 * (n + 1)) and n > 2**27 // 192
+    # one storage binding of 128 MiB: the SH (192 bytes a vertex at degree 3) and the projected
+    # triangles (96 bytes a triangle) are bound in ranges and need one 2 GiB buffer only; the
+    # vertex sums (32 bytes a vertex, bound whole) come first: 2**22 vertices, under the 8 GiB
+    # wall (before 2026-11-27 the SH came first: 2**27 // 192 = 699,050 vertices)
+    assert n > 2**22 and largest_model(8 * gib, **args, max_binding=2**27) == 2**27 // 32
+    assert largest_model(2 * gib, **args, max_binding=2**27) == largest_model(2 * gib, **args) < 2**22
     assert largest_model(8 * gib, **args, max_binding=2**27, max_buffer=2**27) == 2**27 // 192   # SH: one buffer
     assert largest_model(1000, **args) == 0
 

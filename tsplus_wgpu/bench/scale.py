@@ -83,7 +83,8 @@ def crop_twin(reference_render, model, camera, sigma, x0, y0, size=CROP):
 
 def scale_row(renderer, num_vertices, width, height, sh_degree=3, sigma=0.5, repeats=1, reference_render=None):
     """One size: forward + backward ``repeats`` times (medians), memory, pairs, twin on a crop;
-    ``refused`` (the one-line reason) where a buffer does not fit the device."""
+    ``refused`` (the one-line reason) where a buffer of the forward does not fit the device,
+    ``backward_refused`` where one of the backward's does not (the forward's figures stand)."""
     from ..render.backward import backward, pair_window_capacity, pair_windows
     from ..train.memory import training_bytes
     ctx = renderer.ctx
@@ -101,20 +102,29 @@ def scale_row(renderer, num_vertices, width, height, sh_degree=3, sigma=0.5, rep
             ctx.wait()
             t0 = time.perf_counter()
             res = renderer.forward(model, cam, sigma, profile=True)
-            g = backward(renderer, res, vi, None, profile=True)
-            walls.append(time.perf_counter() - t0)
             fwd.append(res.timings)
+            try:
+                g = backward(renderer, res, vi, None, profile=True)
+            except ValueError as exc:
+                row["backward_refused"] = str(exc)
+                walls.append(time.perf_counter() - t0)
+                break
+            walls.append(time.perf_counter() - t0)
             bwd.append(g.timings)
     except ValueError as exc:      # GpuContext.check_size: a buffer over the storage-binding limit
         row["refused"] = str(exc)
         return row
-    row.update(forward_stage_ms=stage_medians(fwd), backward_stage_ms=stage_medians(bwd),
+    wins = renderer.tri_windows(m, res.num_pairs, res.max_tile_pairs)
+    row.update(forward_stage_ms=stage_medians(fwd), backward_stage_ms=stage_medians(bwd) if bwd else {},
+               forward_windows=1 if wins is None else len(wins),
                wall_ms=1e3 * statistics.median(walls),
                pairs=int(res.num_pairs), pairs_per_pixel=res.num_pairs / (width * height),
                device_bytes_peak=ctx.peak_bytes() - before)
-    row["forward_ms"], row["backward_ms"] = sum(row["forward_stage_ms"].values()), sum(row["backward_stage_ms"].values())
+    row["forward_ms"] = sum(row["forward_stage_ms"].values())
+    row["backward_ms"] = sum(row["backward_stage_ms"].values()) if bwd else None
     cap = pair_window_capacity(ctx)
-    row["pair_windows"] = len(pair_windows(res.num_pairs, res.max_tile_pairs, cap))
+    if bwd:
+        row["pair_windows"] = len(pair_windows(res.num_pairs, res.max_tile_pairs, cap))
     row["training_bytes_estimate"] = training_bytes(model.num_vertices, m, sh_degree, width, height,
                                                     int(res.num_pairs), pair_window=cap)["total"]
     if reference_render is not None:
@@ -157,8 +167,11 @@ def format_row(r):
     twin = (f"; crop vs twin: max {r['crop_max_abs_error']:.1e}, {100 * r['crop_share_within_1e_5']:.1f} % <= 1e-5, "
             f"{100 * r['crop_share_within_f32_model']:.1f} % within 1e-5 + the twin's float32 bound"
             if "crop_max_abs_error" in r else "")
-    return (f"{head}  forward {r['forward_ms']:,.1f} ms, backward {r['backward_ms']:,.1f} ms (wall {r['wall_ms']:,.0f}); "
-            f"{r['pairs_per_pixel']:.2f} pairs/px"
+    fw = r.get("forward_windows", 1)
+    bw = (f"backward refused: {r['backward_refused']}" if r.get("backward_refused")
+          else f"backward {r['backward_ms']:,.1f} ms")
+    return (f"{head}  forward {r['forward_ms']:,.1f} ms" + (f" in {fw} windows of gathered triangles" if fw > 1 else "")
+            + f", {bw} (wall {r['wall_ms']:,.0f}); {r['pairs_per_pixel']:.2f} pairs/px"
             + (f" in {r['pair_windows']} backward windows" if r.get("pair_windows", 1) > 1 else "")
             + f"; buffers {_gib(r['device_bytes_peak'])}, training needs about "
             f"{_gib(r['training_bytes_estimate'])}{twin}")
@@ -179,5 +192,67 @@ def format_table(result):
     return "\n".join(out)
 
 
+def scale_training(renderer, num_vertices, width=960, height=540, iterations=50, sh_degree=3, views=4,
+                   folder=None, log=None):
+    """The first ``iterations`` steps of a paper-preset run of a paper-sized model at ``width`` x
+    ``height`` (issue 13: 3M vertices, 960x540, 50 steps): half of them, a checkpoint written to
+    ``folder``, a new trainer resumed from it, the other half. The targets are the model's own
+    renders from ``views`` cameras side by side; training starts from it with its DC colours
+    shuffled between vertices, so the loss must fall. Returns a dict: vertices, triangles, ms a
+    step (median of each half), the loss at the first and last step, the device's peak bytes,
+    the checkpoint's bytes and seconds to write and to resume."""
+    import tempfile
+    from pathlib import Path
+
+    from ..data.scene import Scene
+    from ..train.trainer import TrainConfig, Trainer
+    ctx = renderer.ctx
+    model, cam = scale_scene(num_vertices, width, height, sh_degree)
+    cams = []
+    for i in range(int(views)):
+        w2c = np.array(cam.world_to_camera, np.float64)
+        w2c[0, 3] = 0.08 * (i - (views - 1) / 2)          # side by side, 8 cm apart at depth 2-6
+        cams.append(Camera(width, height, cam.fx, cam.fy, cam.cx, cam.cy, w2c))
+    images = [np.clip(renderer.forward(model, c, 0.5).image, 0.0, 1.0).astype(np.float32) for c in cams]
+    scene = Scene("procedural", cams, images, [f"view_{i}" for i in range(len(cams))],
+                  train_indices=list(range(len(cams))), test_indices=[0])
+    start = TriangleModel(model.positions, model.triangles, model.sh.copy(), model.opacity)
+    start.sh[:, 0] = start.sh[np.random.default_rng(7).permutation(model.num_vertices), 0]
+    cfg = TrainConfig(quick=False, topology=False, log_every=0, seed=0)
+    half = max(1, int(iterations) // 2)
+    ctx.reset_peak()
+    out = dict(vertices=model.num_vertices, triangles=model.num_triangles, width=width, height=height,
+               iterations=int(iterations))
+    with tempfile.TemporaryDirectory(dir=folder) as tmp:
+        t = Trainer(scene, cfg, renderer=renderer, model=start)
+        times = []
+        for i in range(half):
+            t0 = time.perf_counter()
+            stats = t.step(read_stats=i == 0)
+            times.append(time.perf_counter() - t0)
+            if i == 0:
+                out["loss_first"] = stats["loss"]
+            if log and (i + 1) % 5 == 0:
+                log(f"  step {i + 1}: {1e3 * statistics.median(times):,.0f} ms a step")
+        path = Path(tmp) / "checkpoint.npz"
+        t0 = time.perf_counter()
+        t.save_checkpoint(path)
+        out["checkpoint_s"], out["checkpoint_bytes"] = time.perf_counter() - t0, path.stat().st_size
+        del t
+        t0 = time.perf_counter()
+        t = Trainer.resume(path, scene, cfg, renderer=renderer)
+        out["resume_s"] = time.perf_counter() - t0
+        later = []
+        for i in range(half, int(iterations)):
+            t0 = time.perf_counter()
+            stats = t.step(read_stats=i == int(iterations) - 1)
+            later.append(time.perf_counter() - t0)
+        out["loss_last"] = stats["loss"] if stats else None
+        out["iteration"] = t.iteration
+    out.update(ms_per_step=1e3 * statistics.median(times), ms_per_step_resumed=1e3 * statistics.median(later or [0]),
+               device_bytes_peak=ctx.peak_bytes())
+    return out
+
+
 __all__ = ["SCALE_SIZES", "CROP", "scale_scene", "crop_twin", "scale_row", "scale_report", "format_row",
-           "format_table"]
+           "format_table", "scale_training"]

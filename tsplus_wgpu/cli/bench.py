@@ -250,20 +250,54 @@ def add_scale_parser(sub):
     p.add_argument("--sigma", type=float, default=0.5, help="window sharpness (default 0.5)")
     p.add_argument("--repeats", type=int, default=1, help="timed runs per size; medians (default 1: llvmpipe is slow)")
     p.add_argument("--no-twin", action="store_true", help="skip the float64 twin on a 32x32 crop")
+    p.add_argument("--train", type=int, default=0, metavar="N",
+                   help="also train each size N steps at --train-size (the first steps of a paper-preset run, half "
+                        "of them, a checkpoint, a resumed trainer, the rest): ms a step, loss, peak memory "
+                        "(default 0: no training)")
+    p.add_argument("--train-size", default="960x540", metavar="WxH", help="training image size (default 960x540)")
     p.add_argument("--json", default=None, help="write the result here")
     add_adapter_arg(p)
     return p
 
 
+def _train_line(r):
+    return (f"{r['vertices']:>10,} v {r['triangles']:>10,} t  trained {r['iterations']} steps at {r['width']}x"
+            f"{r['height']}: {r['ms_per_step']:,.0f} ms a step ({r['ms_per_step_resumed']:,.0f} after the resume), "
+            f"loss {r['loss_first']:.4f} -> {r['loss_last']:.4f}; checkpoint {r['checkpoint_bytes'] / 2**20:,.0f} MiB "
+            f"in {r['checkpoint_s']:.1f} s, resumed in {r['resume_s']:.1f} s; peak buffers "
+            f"{r['device_bytes_peak'] / 2**30:.2f} GiB")
+
+
 def run_bench_scale(args):
     """``tsplus bench-scale``: one line per size as it finishes, the table, and JSON with ``--json``."""
     from .. import reference
-    from ..bench.scale import format_table, scale_report
-    if args.width < 32 or args.height < 32 or args.repeats < 1:
-        raise ValueError("--width/--height: at least 32 (the twin's crop); --repeats: at least 1")
-    return _run_report(args, lambda renderer, log: scale_report(
-        renderer, args.vertices, args.width, args.height, args.sh_degree, args.sigma, args.repeats,
-        reference_render=None if args.no_twin else reference.render, log=log), format_table)
+    from ..bench.scale import format_table, scale_report, scale_training
+    if args.width < 32 or args.height < 32 or args.repeats < 1 or args.train < 0:
+        raise ValueError("--width/--height: at least 32 (the twin's crop); --repeats: at least 1; --train: >= 0")
+    try:
+        tw, th = (int(v) for v in str(args.train_size).lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--train-size: expected WxH such as 960x540, got {args.train_size!r}") from None
+
+    def report(renderer, log):
+        out = scale_report(renderer, args.vertices, args.width, args.height, args.sh_degree, args.sigma,
+                           args.repeats, reference_render=None if args.no_twin else reference.render, log=log)
+        out["training"] = []
+        for n in args.vertices if args.train else ():
+            try:
+                row = scale_training(renderer, n, tw, th, args.train, args.sh_degree, log=log)
+            except ValueError as exc:     # a buffer over the device's limits
+                row = dict(vertices=n, refused=str(exc))
+            out["training"].append(row)
+            log(_train_line(row) if "refused" not in row else f"{n:>10,} v  training refused: {row['refused']}")
+        return out
+
+    def fmt(result):
+        lines = [_train_line(r) if "refused" not in r else f"{r['vertices']:>10,} v  training refused: {r['refused']}"
+                 for r in result["training"]]
+        return format_table(result) + ("\n\n" + "\n".join(lines) if lines else "")
+
+    return _run_report(args, report, fmt)
 
 
 def _run_report(args, report, fmt):

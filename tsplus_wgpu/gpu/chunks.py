@@ -68,4 +68,26 @@ def item_slice(buffer, start, count, width):
     return Slice(buffer, int(start) * int(width), max(4, int(count) * int(width)))
 
 
-__all__ = ["CHUNK_BYTES", "Slice", "binding_bytes", "item_chunks", "item_slice"]
+def pair_windows(num_pairs, max_tile_pairs, capacity, what="backward pair statistics"):
+    """Windows of whole tiles over a view's tile-sorted pairs, for per-pair data of which one
+    binding holds ``capacity`` pairs (the backward's statistics, the projected triangles in
+    pair order): ``[(lo, hi, length)]``.
+
+    The tiles whose first pair is in ``[lo, hi)`` replay in a window; their statistics fill
+    pairs ``[lo, lo + length)`` (a tile that starts before ``hi`` may end after it), at most
+    ``capacity`` of them. One window ``(0, P, P)`` when all ``P`` pairs fit."""
+    P, big, cap = int(num_pairs), int(max_tile_pairs), int(capacity)
+    if P <= cap:
+        return [(0, P, P)]
+    step = cap - big
+    if step < 1:
+        raise ValueError(f"{what}: one 16x16 tile has {big:,} tile-triangle pairs, more than one "
+                         f"storage binding holds ({cap:,}); use fewer triangles or a smaller image")
+    out = []
+    for lo in range(0, P, step):
+        hi = min(lo + step, P)
+        out.append((lo, hi, min(P, hi + big) - lo))
+    return out
+
+
+__all__ = ["pair_windows", "CHUNK_BYTES", "Slice", "binding_bytes", "item_chunks", "item_slice"]

@@ -88,10 +88,11 @@ class Scratch:
         self.ctx = ctx
         self.buffers = {}
 
-    def get(self, name, nbytes, grow=1.5):
+    def get(self, name, nbytes, grow=1.5, chunked=False):
         """Buffer ``name`` of at least ``nbytes``. One that is too small is dropped first (so
         the two never live at once, unless the caller still holds the old one) and made again
-        ``grow`` times its old size where that is more than asked (fewer regrowths)."""
+        ``grow`` times its old size where that is more than asked (fewer regrowths).
+        ``chunked``: bound a range at a time, so it may exceed one binding (``GpuContext.buffer``)."""
         nbytes = max(16, int(nbytes))
         buf = self.buffers.get(name)
         if buf is None or buf.size < nbytes:
@@ -100,7 +101,7 @@ class Scratch:
             buf = None
             cap = max(nbytes, min(int(old * grow), self.ctx.limits["max-storage-buffer-binding-size"]))
             cap = (cap + 255) // 256 * 256
-            buf = self.ctx.buffer(cap, label=name)
+            buf = self.ctx.buffer(cap, label=name, chunked=chunked)
             self.buffers[name] = buf
         return buf
 

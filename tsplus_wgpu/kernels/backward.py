@@ -5,6 +5,7 @@ and replay (``rasterize_backward``), and the chain rule to the triangles' corner
 from __future__ import annotations
 
 from ..gpu import Stage
+from ..gpu.chunks import item_chunks, item_slice
 from .project import per_vertex
 from ..gpu.wgsl import constant
 
@@ -38,7 +39,9 @@ class RasterizeBackward(Stage):
         self.rounds_per_pass = self.const("ROUNDS_PER_PASS")
 
     def __call__(self, enc, params, ranges, pair_tris, tris, v_out, state, partials, work, tiles_x, tiles_y,
-                 max_range, profiler=None, window=None, clear=True):
+                 max_range, profiler=None, window=None, clear=True, gathered=False):
+        """``gathered``: ``tris`` holds the window's records in pair order
+        (:class:`~tsplus_wgpu.kernels.blend.GatherTris`), not every triangle's."""
         lo, hi = (0, 2**32 - 1) if window is None else (int(window[0]), int(window[1]))
         enc.clear_buffer(partials)
         if clear:
@@ -46,7 +49,8 @@ class RasterizeBackward(Stage):
         rounds = (int(max_range) + self.pairs_per_round - 1) // self.pairs_per_round
         step = self.rounds_per_pass
         for r0 in range(0, max(rounds, 1), step):
-            pp = self.uniform("PassParams", round_begin=r0, round_end=r0 + step, pair_lo=lo, pair_hi=hi)
+            pp = self.uniform("PassParams", round_begin=r0, round_end=r0 + step, pair_lo=lo, pair_hi=hi,
+                              gathered=int(bool(gathered)))
             self.dispatch(enc, (tiles_x, tiles_y, 1),
                           dict(params=params, pp=pp, ranges=ranges, pair_tris=pair_tris, tris=tris, v_out=v_out,
                                state=state, partials=partials, work=work), profiler)
@@ -57,10 +61,16 @@ class ProjectBackward(Stage):
 
     def __call__(self, enc, params, positions, triangles, opacities, colors, tris, pixel_rects, tri_stats,
                  corner_grads, num_triangles, profiler=None):
-        self.dispatch(enc, self.groups(num_triangles),
-                      dict(params=params, positions=positions, triangles=triangles, opacities=opacities,
-                           colors=colors, tris=tris, pixel_rects=pixel_rects, tri_stats=tri_stats,
-                           corner_grads=corner_grads), profiler)
+        """In ranges of triangles where the per-triangle records outgrow one binding."""
+        size = int(self.src.structs["Tri2D"].itemsize)
+        ranged = dict(tris=(tris, size), tri_stats=(tri_stats, 4 * NSTAT), corner_grads=(corner_grads, 96))
+        chunks = item_chunks(self.ctx, num_triangles, [w for _, w in ranged.values()])
+        for start, count in chunks:
+            items = self.uniform("ItemRange", count=count, first=start)
+            bound = {key: b if len(chunks) == 1 else item_slice(b, start, count, w) for key, (b, w) in ranged.items()}
+            self.dispatch(enc, self.groups(count),
+                          dict(params=params, positions=positions, triangles=triangles, opacities=opacities,
+                               colors=colors, pixel_rects=pixel_rects, items=items, **bound), profiler)
 
 
 class VertexBackward(Stage):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..gpu import Stage
+from ..gpu.chunks import item_chunks, item_slice
 
 
 class BinRows(Stage):
@@ -26,6 +27,17 @@ class BinItems(Stage):
                            row_offsets=row_offsets, item_rank=item_rank), profiler)
 
 
+def _pages(stage, tris):
+    """``[(ItemRange uniform, binding)]``: the projected triangles ``tris`` (``Tri2D`` records) a
+    binding's page at a time where they outgrow one (``gpu/chunks.py``), else one page of all."""
+    size = int(stage.src.structs["Tri2D"].itemsize)
+    m = tris.size // size
+    pages = item_chunks(stage.ctx, m, [size])
+    if len(pages) == 1:
+        return [(stage.uniform("ItemRange", count=0xFFFFFFFF, first=0), tris)]
+    return [(stage.uniform("ItemRange", count=n, first=start), item_slice(tris, start, n, size)) for start, n in pages]
+
+
 class BinCount(Stage):
     """Per item the tiles of its row that the triangle meets; per tile the number of triangles."""
     stage = "bin_count"
@@ -33,10 +45,11 @@ class BinCount(Stage):
     def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, row_offsets, item_rank, counts, tile_counts,
                  num_rows, profiler=None):
         enc.clear_buffer(tile_counts)
-        self.dispatch(enc, self.groups(num_rows),
-                      dict(params=params, tris=tris, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank,
-                           row_offsets=row_offsets, item_rank=item_rank, counts=counts, tile_counts=tile_counts),
-                      profiler)
+        for page, tri_page in _pages(self, tris):
+            self.dispatch(enc, self.groups(num_rows),
+                          dict(params=params, tris=tri_page, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank,
+                               row_offsets=row_offsets, item_rank=item_rank, counts=counts, tile_counts=tile_counts,
+                               page=page), profiler)
 
 
 class BinEmit(Stage):
@@ -45,10 +58,11 @@ class BinEmit(Stage):
 
     def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, row_offsets, item_rank, offsets, pair_tiles,
                  pair_tris, num_rows, profiler=None):
-        self.dispatch(enc, self.groups(num_rows),
-                      dict(params=params, tris=tris, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank,
-                           row_offsets=row_offsets, item_rank=item_rank, offsets=offsets, pair_tiles=pair_tiles,
-                           pair_tris=pair_tris), profiler)
+        for page, tri_page in _pages(self, tris):
+            self.dispatch(enc, self.groups(num_rows),
+                          dict(params=params, tris=tri_page, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank,
+                               row_offsets=row_offsets, item_rank=item_rank, offsets=offsets, pair_tiles=pair_tiles,
+                               pair_tris=pair_tris, page=page), profiler)
 
 
 class TileRanges(Stage):

@@ -1,8 +1,10 @@
 """Host classes of ``shaders/blend/``: the forward blend and, as a pipeline-constant variant
-of the same WGSL, the triangle-ID pass."""
+of the same WGSL, the triangle-ID pass; the gather of a window's projected triangles where they
+outgrow one storage binding."""
 
 from __future__ import annotations
 
+from ..gpu.chunks import item_chunks, item_slice
 from ..gpu.stage import Stage
 from ..gpu.wgsl import constant
 
@@ -27,23 +29,31 @@ class RasterizeForward(Stage):
     stage = "rasterize_forward"
     label = "rasterize_forward"     # profiler label
 
-    def passes(self, enc, max_tile_pairs, buffers, tiles_x, tiles_y, profiler=None):
+    def passes(self, enc, max_tile_pairs, buffers, tiles_x, tiles_y, profiler=None, window=None):
         """Record ceil(max_tile_pairs / PASS_PAIRS) dispatches (one in practice), each over the
-        next window of every tile's pairs, the pixel state carried in the bound outputs."""
+        next window of every tile's pairs, the pixel state carried in the bound outputs.
+        ``window`` ``(lo, hi)``: only the tiles whose first pair is in it, ``tris`` holding the
+        records of pairs ``lo, lo + 1, ...`` (:class:`GatherTris`)."""
         step = self.const("PASS_PAIRS")
         passes = max(1, -(-int(max_tile_pairs) // step))
+        lo, hi = (0, 0xFFFFFFFF) if window is None else window
         for i in range(passes):
             bp = self.uniform("BlendPass", begin=i * step, end=(i + 1) * step,
-                              first=int(i == 0), last=int(i == passes - 1))
+                              first=int(i == 0), last=int(i == passes - 1), pair_lo=lo, pair_hi=hi,
+                              gathered=int(window is not None))
             self.dispatch(enc, (tiles_x, tiles_y, 1), dict(buffers, pass_=bp), profiler, self.label)
 
     def __call__(self, enc, params, ranges, pair_tris, tris, image, final_t, n_contrib, max_weight, work,
-                 tiles_x, tiles_y, max_tile_pairs, profiler=None):
-        enc.clear_buffer(max_weight)
-        enc.clear_buffer(work)
+                 tiles_x, tiles_y, max_tile_pairs, profiler=None, window=None, clear=True):
+        """``window``: see :meth:`passes`; ``clear``: zero the max weights and work counters
+        first (the first window)."""
+        if clear:
+            enc.clear_buffer(max_weight)
+            enc.clear_buffer(work)
         self.passes(enc, max_tile_pairs, dict(params=params, ranges=ranges, pair_tris=pair_tris, tris=tris,
                                               image=image, final_t=final_t, n_contrib=n_contrib,
-                                              max_weight=max_weight, work=work), tiles_x, tiles_y, profiler)
+                                              max_weight=max_weight, work=work), tiles_x, tiles_y, profiler,
+                    window)
 
 
 class RasterizeIds(RasterizeForward):
@@ -58,14 +68,30 @@ class RasterizeIds(RasterizeForward):
         self.placeholder = ctx.buffer(16, "rasterize_ids.placeholder")
 
     def __call__(self, enc, params, ranges, pair_tris, tris, id_t, id_state, tiles_x, tiles_y, max_tile_pairs,
-                 profiler=None):
+                 profiler=None, window=None):
         """Per pixel the triangle of largest alpha * T, ties to the front-most: ``id_state``
         ``[H, W]`` vec2<u32> gets (its index, its weight as f32 bits), (0xFFFFFFFF, 0) where none
         contributes; ``id_t`` ``[H, W]`` f32 the transmittance of the walk."""
         ph = self.placeholder
         self.passes(enc, max_tile_pairs, dict(params=params, ranges=ranges, pair_tris=pair_tris, tris=tris,
                                               image=ph, final_t=id_t, n_contrib=id_state, max_weight=ph,
-                                              work=ph), tiles_x, tiles_y, profiler)
+                                              work=ph), tiles_x, tiles_y, profiler, window)
 
 
-__all__ = ["BLEND_PASS_PAIRS", "RasterizeForward", "RasterizeIds"]
+class GatherTris(Stage):
+    """The projected triangles of pairs ``[lo, lo + count)`` in pair order (``out[p] =
+    tris[pair_tris[lo + p]]``), reading ``tris`` a binding's page of triangles at a time: where
+    the projected triangles of a model outgrow one binding, the rasterizers read a window's."""
+
+    stage = "gather_tris"
+
+    def __call__(self, enc, pair_tris, tris, out, lo, count, num_triangles, itemsize, profiler=None):
+        pages = item_chunks(self.ctx, num_triangles, [itemsize])
+        for start, n in pages:
+            gp = self.uniform("GatherParams", lo=lo, count=count, page_lo=start, page_hi=start + n)
+            page = tris if len(pages) == 1 else item_slice(tris, start, n, itemsize)
+            self.dispatch(enc, self.groups(count), dict(gp=gp, pair_tris=pair_tris, tris=page, out=out), profiler,
+                          "gather_tris")
+
+
+__all__ = ["BLEND_PASS_PAIRS", "RasterizeForward", "RasterizeIds", "GatherTris"]

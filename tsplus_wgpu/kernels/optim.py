@@ -62,9 +62,13 @@ class OpacityReg(Stage):
     stage = "opacity_reg"
 
     def __call__(self, enc, triangles, opacity, corner_vals, m, weight, profiler=None):
-        rp = self.uniform("RegParams", num_triangles=m, per_triangle=float(weight) / max(m, 1))
-        self.dispatch(enc, self.groups(m), dict(rp=rp, triangles=triangles, opacity=opacity,
-                                                 corner_vals=corner_vals), profiler)
+        """In ranges of triangles where ``corner_vals`` outgrows one binding."""
+        chunks = item_chunks(self.ctx, m, [48])
+        for start, count in chunks:
+            rp = self.uniform("RegParams", num_triangles=count, first=start, per_triangle=float(weight) / max(m, 1))
+            out = corner_vals if len(chunks) == 1 else item_slice(corner_vals, start, count, 48)
+            self.dispatch(enc, self.groups(count), dict(rp=rp, triangles=triangles, opacity=opacity,
+                                                         corner_vals=out), profiler)
 
 
 class OpacityRegGradient:

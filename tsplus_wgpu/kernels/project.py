@@ -44,7 +44,7 @@ def per_vertex(stage, enc, n, arrays, fixed, profiler=None):
     range's count), ``fixed`` ``{binding: buffer}`` bound whole."""
     chunks = item_chunks(stage.ctx, n, [w for _, w in arrays.values()])
     for start, count in chunks:
-        items = stage.uniform("ItemRange", count=count)
+        items = stage.uniform("ItemRange", count=count, first=start)
         bound = {key: b if len(chunks) == 1 else item_slice(b, start, count, w) for key, (b, w) in arrays.items()}
         stage.dispatch(enc, stage.groups(count), dict(fixed, items=items, **bound), profiler)
 
@@ -55,7 +55,13 @@ class ProjectTriangles(Stage):
 
     def __call__(self, enc, params, positions, triangles, opacities, colors, tris, pixel_rects, depth_keys,
                  tri_ids, num_triangles, profiler=None):
-        self.dispatch(enc, self.groups(num_triangles),
-                      dict(params=params, positions=positions, triangles=triangles, opacities=opacities,
-                           colors=colors, tris=tris, pixel_rects=pixel_rects, depth_keys=depth_keys,
-                           tri_ids=tri_ids), profiler)
+        """In ranges of triangles where ``tris`` outgrows one binding (``gpu/chunks.py``)."""
+        size = int(self.src.structs["Tri2D"].itemsize)
+        chunks = item_chunks(self.ctx, num_triangles, [size])
+        for start, count in chunks:
+            items = self.uniform("ItemRange", count=count, first=start)
+            out = tris if len(chunks) == 1 else item_slice(tris, start, count, size)
+            self.dispatch(enc, self.groups(count),
+                          dict(params=params, positions=positions, triangles=triangles, opacities=opacities,
+                               colors=colors, tris=out, pixel_rects=pixel_rects, depth_keys=depth_keys,
+                               tri_ids=tri_ids, items=items), profiler)

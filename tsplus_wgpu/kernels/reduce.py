@@ -4,6 +4,10 @@ segmented sum (``segment_up``, ``segment_down``; composed by :class:`SegmentSum`
 from __future__ import annotations
 
 from ..gpu import Stage
+from ..gpu.chunks import binding_bytes, item_chunks, item_slice
+
+#: all values, all keys: the SegParams ranges of a sum whose arrays fit one binding
+ALL = (0, 0xFFFFFFFF)
 
 
 class MaxReduce(Stage):
@@ -22,8 +26,10 @@ class SegmentUp(Stage):
     stage = "segment_up"
 
     def __call__(self, enc, keys_in, index, vals_in, keys_out, vals_out, n, width, gather, profiler=None,
-                 label=None):
-        sp = self.uniform("SegParams", n=n, width=width, gather=int(gather), top=0)
+                 label=None, vals_range=ALL):
+        """``vals_range``: the values ``vals_in`` holds (of the gather at level 0; the others count 0)."""
+        sp = self.uniform("SegParams", n=n, width=width, gather=int(gather), top=0, val_lo=vals_range[0],
+                          val_hi=vals_range[1], key_lo=0, key_hi=0xFFFFFFFF)
         chunks = self.groups(n, self.const("CHUNK"))
         self.dispatch(enc, self.groups(chunks), dict(sp=sp, keys_in=keys_in, index=index, vals_in=vals_in,
                                                      keys_out=keys_out, vals_out=vals_out), profiler, label)
@@ -35,8 +41,12 @@ class SegmentDown(Stage):
 
     stage = "segment_down"
 
-    def __call__(self, enc, keys_in, index, vals_in, out, n, width, gather, top, profiler=None, label=None):
-        sp = self.uniform("SegParams", n=n, width=width, gather=int(gather), top=int(top))
+    def __call__(self, enc, keys_in, index, vals_in, out, n, width, gather, top, profiler=None, label=None,
+                 vals_range=ALL, keys_range=ALL):
+        """``vals_range`` as in :class:`SegmentUp`; ``keys_range``: the keys ``out`` holds (others
+        are not written)."""
+        sp = self.uniform("SegParams", n=n, width=width, gather=int(gather), top=int(top), val_lo=vals_range[0],
+                          val_hi=vals_range[1], key_lo=keys_range[0], key_hi=keys_range[1])
         self.dispatch(enc, self.groups(n), dict(sp=sp, keys_in=keys_in, index=index, vals_in=vals_in, out=out),
                       profiler, label)
 
@@ -47,7 +57,12 @@ class SegmentSum:
     that key``, in a fixed order, for sorted ``keys [n]``; element i's value is the
     ``width`` vec4s at ``vals[index[i] * width:]``. ``out`` (``[keys, width]`` vec4) is
     zeroed first, so keys without elements get zero; with ``clear=False`` the sums are added
-    to what ``out`` holds (``out[key] += ...``, the sum of several batches of elements)."""
+    to what ``out`` holds (``out[key] += ...``, the sum of several batches of elements).
+
+    ``vals`` and ``out`` may be larger than one storage binding (``gpu/chunks.py``): then the
+    sum runs once per page of gathered values (each adding its values' share) and writes each
+    page of keys through its own binding; the order of the additions then differs from the
+    one-binding sum's (a sum of per-page sums)."""
 
     def __init__(self, ctx, scratch, name):
         self.ctx = ctx
@@ -57,25 +72,35 @@ class SegmentSum:
         self.down = SegmentDown(ctx)
         self.chunk = self.up.const("CHUNK")    # elements per chunk and level
 
+    def _pages(self, buf, width):
+        """``[(range, binding)]`` of a ``[*, width]`` vec4 buffer: one of all where it fits a binding."""
+        if buf.size <= binding_bytes(self.ctx):
+            return [(ALL, buf)]
+        item = 16 * width
+        return [((s, s + c), item_slice(buf, s, c, item)) for s, c in item_chunks(self.ctx, buf.size // item, [item])]
+
     def record(self, enc, keys, index, vals, n, width, out, profiler=None, label=None, clear=True):
         assert width in (1, 2, 5)
         if clear:
             enc.clear_buffer(out)
         if n == 0:
             return
-        levels = [(keys, vals, int(n))]
-        while levels[-1][2] > self.chunk:
-            k_in, v_in, n_l = levels[-1]
-            nc = (n_l + self.chunk - 1) // self.chunk
-            depth = len(levels)
-            k_out = self.scratch.get(f"{self.name}_keys_{depth}", 4 * nc)
-            v_out = self.scratch.get(f"{self.name}_vals_{depth}", 16 * width * nc)
-            self.up(enc, k_in, index, v_in, k_out, v_out, n_l, width, depth == 1, profiler, label)
-            levels.append((k_out, v_out, nc))
-        for depth in range(len(levels) - 1, -1, -1):
-            k_in, v_in, n_l = levels[depth]
-            self.down(enc, k_in, index, v_in, out, n_l, width, depth == 0, depth == len(levels) - 1, profiler,
-                      label)
+        outs = self._pages(out, width)
+        for vals_range, vals_page in self._pages(vals, width):
+            levels = [(keys, vals_page, int(n))]
+            while levels[-1][2] > self.chunk:
+                k_in, v_in, n_l = levels[-1]
+                nc = (n_l + self.chunk - 1) // self.chunk
+                depth = len(levels)
+                k_out = self.scratch.get(f"{self.name}_keys_{depth}", 4 * nc)
+                v_out = self.scratch.get(f"{self.name}_vals_{depth}", 16 * width * nc)
+                self.up(enc, k_in, index, v_in, k_out, v_out, n_l, width, depth == 1, profiler, label, vals_range)
+                levels.append((k_out, v_out, nc))
+            for keys_range, out_page in outs:
+                for depth in range(len(levels) - 1, -1, -1):
+                    k_in, v_in, n_l = levels[depth]
+                    self.down(enc, k_in, index, v_in, out_page, n_l, width, depth == 0, depth == len(levels) - 1,
+                              profiler, label, vals_range, keys_range)
 
 
 __all__ = ["MaxReduce", "SegmentUp", "SegmentDown", "SegmentSum"]

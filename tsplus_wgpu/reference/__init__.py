@@ -10,7 +10,7 @@ from ..types import SH_C0
 from . import (backward, bench, bin, blend, forward, loss, mesh, normals, optim, project, reduce, render_backward, sort,
                topology)
 from .bin import bin_count, bin_emit, bin_items, bin_pairs, bin_rows, tile_overlaps, tile_ranges
-from .blend import IdResult, RenderResult, rasterize_forward, rasterize_ids, triangle_ids
+from .blend import IdResult, RenderResult, gather_tris, rasterize_forward, rasterize_ids, triangle_ids
 from .forward import render
 from .project import (ALPHA_MAX, ALPHA_MIN, BIN_MARGIN, MIN_THINNESS, T_MIN, TILE, TRI2D, Projection, project_triangles,
                       projection, projection_from_records, sh_to_color)
@@ -20,6 +20,6 @@ __all__ = ["backward", "bench", "bin", "blend", "forward", "loss", "mesh", "norm
            "render_backward", "sort", "topology",
            "sh_basis", "vertex_colors", "SH_C0", "bin_count", "bin_emit", "bin_items", "bin_pairs", "bin_rows",
            "tile_overlaps", "tile_ranges", "IdResult", "RenderResult", "rasterize_forward", "rasterize_ids",
-           "triangle_ids", "render", "ALPHA_MAX", "ALPHA_MIN", "BIN_MARGIN", "MIN_THINNESS", "T_MIN", "TILE", "TRI2D",
+           "triangle_ids", "gather_tris", "render", "ALPHA_MAX", "ALPHA_MIN", "BIN_MARGIN", "MIN_THINNESS", "T_MIN", "TILE", "TRI2D",
            "Projection", "project_triangles", "projection", "projection_from_records", "sh_to_color", "depth_order",
            "prefix_sum", "radix_count", "radix_scatter", "radix_sort", "scan_add", "scan_block"]

@@ -2,7 +2,8 @@
 and its triangle-ID variant (:func:`rasterize_ids`: per pixel the triangle with the largest
 blending weight alpha * T, walking the triangles front to back exactly as the forward blend
 does; ties go to the front-most triangle, -1 where no triangle contributes), plus the whole
-ID pass from a model (:func:`triangle_ids`).
+ID pass from a model (:func:`triangle_ids`), and the gather of a window's projected triangles
+in pair order (:func:`gather_tris`).
 
 Besides the IDs the ID twin returns the best and the second-best weight of every pixel, so a
 test can leave out pixels where float32 arithmetic may legitimately pick the other triangle.
@@ -152,3 +153,12 @@ def triangle_ids(model: TriangleModel, camera: Camera, sigma, near=0.01, ambigui
         raise ValueError("camera: expected a Camera")
     proj = projection(model, camera, sigma, near)
     return rasterize_ids(proj, depth_order(proj), camera.width, camera.height, ambiguity_tol, sigma=sigma)
+
+
+def gather_tris(records, pair_tris, lo, count):
+    """The projected triangles of pairs ``[lo, lo + count)`` in pair order: ``records[pair_tris[lo
+    + p]]`` for p < count (``records``: ``[M]`` rows of any dtype, e.g. the ``Tri2D`` bytes).
+    Copies, so exact."""
+    ids = np.asarray(pair_tris, np.int64)[int(lo):int(lo) + int(count)]
+    return np.asarray(records)[ids].copy()
+

@@ -35,31 +35,12 @@ import weakref
 import numpy as np
 import wgpu
 
+from ..gpu.chunks import binding_bytes, pair_windows
 from ..gpu.recorder import Recorder
 from ..kernels.backward import NSTAT, BackwardPrepare, ProjectBackward, RasterizeBackward, VertexBackward
 from ..kernels.reduce import SegmentSum
 from ..kernels.sort import RadixSort
 from ..types import Grads, TriangleModel, check_cotangents
-
-
-def pair_windows(num_pairs, max_tile_pairs, capacity):
-    """The windows of pairs the backward replays one after the other: ``[(lo, hi, length)]``.
-
-    The tiles whose first pair is in ``[lo, hi)`` replay in a window; their statistics fill
-    pairs ``[lo, lo + length)`` (a tile that starts before ``hi`` may end after it), at most
-    ``capacity`` of them. One window ``(0, P, P)`` when all ``P`` pairs fit."""
-    P, big, cap = int(num_pairs), int(max_tile_pairs), int(capacity)
-    if P <= cap:
-        return [(0, P, P)]
-    step = cap - big
-    if step < 1:
-        raise ValueError(f"backward pair statistics: one 16x16 tile has {big:,} tile-triangle pairs, more than one "
-                         f"storage binding holds ({cap:,}); use fewer triangles or a smaller image")
-    out = []
-    for lo in range(0, P, step):
-        hi = min(lo + step, P)
-        out.append((lo, hi, min(P, hi + big) - lo))
-    return out
 
 
 def pair_window_capacity(ctx):
@@ -90,9 +71,15 @@ class BackwardPass:
         #: the device holds; tests set fewer to exercise the windows)
         self.pair_capacity = None
 
-    def window_capacity(self):
-        """Pairs per window (:func:`pair_window_capacity`, or the tests' ``pair_capacity``)."""
-        return pair_window_capacity(self.ctx) if self.pair_capacity is None else int(self.pair_capacity)
+    def window_capacity(self, num_triangles=0):
+        """Pairs per window (:func:`pair_window_capacity`, or the tests' ``pair_capacity``); where
+        the projected triangles of ``num_triangles`` outgrow one binding, also no more than one
+        binding of their records in pair order holds."""
+        cap = pair_window_capacity(self.ctx) if self.pair_capacity is None else int(self.pair_capacity)
+        size = self.renderer.tri2d_dtype.itemsize
+        if num_triangles * size > binding_bytes(self.ctx):
+            cap = min(cap, binding_bytes(self.ctx) // size)
+        return cap
 
     def _pair_ids(self, count):
         """A buffer holding 0, 1, ..., at least ``count`` of them (kept; grown when short)."""
@@ -180,10 +167,11 @@ class BackwardPass:
     def _check_sizes(self, result):
         model = result.model
         m, n, k = model.num_triangles, model.num_vertices, model.sh_size
-        pair_windows(result.num_pairs, result.max_tile_pairs, self.window_capacity())   # a tile over a window
+        pair_windows(result.num_pairs, result.max_tile_pairs, self.window_capacity(m))   # a tile over a window
+        # bound a range of triangles at a time, or read gathered per window of pairs (gpu/chunks.py)
         for name, nbytes in (("backward triangle statistics", 4 * NSTAT * m),
                              ("backward corner gradients", 32 * 3 * m)):
-            self.ctx.check_size(name, nbytes)
+            self.ctx.check_size(name, nbytes, chunked=True)
         self.ctx.check_size("v_sh", 12 * n * k, chunked=True)   # bound a range of vertices at a time
 
     def _outputs(self, out, n, k):
@@ -211,9 +199,13 @@ class BackwardPass:
         # the longest tile list sizes the passes of rasterize_backward and the windows; the
         # forward already read it back, so no second readback here
         max_range = int(result.max_tile_pairs)
-        windows = pair_windows(P, max_range, self.window_capacity())
+        windows = pair_windows(P, max_range, self.window_capacity(m))
         span = max(length for _, _, length in windows)
         alloc = r.buffer_source(result.reused, "backward_")
+        # projected triangles past one binding: each window reads its pairs' records, gathered
+        size = r.tri2d_dtype.itemsize
+        gathered = m * size > binding_bytes(c)
+        tris = alloc(size * max(span, 1), "tris_window") if gathered else b["tris"]
         pkeys, pvals = alloc(4 * span, "pair_keys"), alloc(4 * span, "pair_ids")
         # the pair ids 0, 1, ... (kept): the sort may permute its inputs in place, so every
         # window starts from a copy
@@ -232,9 +224,12 @@ class BackwardPass:
                      h * w, prof)
         tbits = max(1, int(m - 1).bit_length())
         for i, (lo, hi, length) in enumerate(windows):
-            self.raster(rec.encoder, params, b["ranges"], b["pair_tris"], b["tris"], buf["v_out"], buf["state"],
+            if gathered:
+                r.gather(rec.encoder, b["pair_tris"], b["tris"], tris, lo, length, m, size, prof)
+            self.raster(rec.encoder, params, b["ranges"], b["pair_tris"], tris, buf["v_out"], buf["state"],
                         buf["partials"], buf["work"], tx, ty, max_range, prof,
-                        window=None if len(windows) == 1 else (lo, hi), clear=i == 0)
+                        window=None if len(windows) == 1 and not gathered else (lo, hi), clear=i == 0,
+                        gathered=gathered)
             flush("rasterize_backward")
             # each triangle's pairs together, in tile order (stable sort by triangle), then summed
             # (added to the earlier windows' sums)

@@ -14,11 +14,15 @@ from ..kernels.bin import BinCount, BinEmit, BinItems, BinRows, TileRanges
 from ..kernels.reduce import MaxReduce
 from ..kernels.sort import PrefixSum, RadixSort
 from ..kernels.project import ProjectTriangles, ShToColor, frame_params
-from ..kernels.blend import RasterizeForward, RasterizeIds
+from ..kernels.blend import GatherTris, RasterizeForward, RasterizeIds
+from ..gpu.chunks import binding_bytes, pair_windows
 from ..gpu.stage import Scratch
 from ..gpu.wgsl import constant
 from .device_model import DeviceModel
 from ..types import Camera, TriangleModel, check_render_args
+
+#: the forward's and backward's buffers bound a range of triangles at a time (``gpu/chunks.py``)
+CHUNKED = ("tris", "tri_stats", "corner_grads")
 
 TILE = constant("TILE")                            # pixels per tile side (frame.wgsl)
 MAX_TILES_PER_ROW = constant("MAX_TILES_PER_ROW")  # binning's loop over a row of tiles (frame.wgsl)
@@ -159,6 +163,7 @@ class Renderer:
         self.tile_sort = RadixSort(c, self.scratch, "tile_sort")
         self.tile_ranges = TileRanges(c)
         self.blend = RasterizeForward(c)
+        self.gather = GatherTris(c)
         self._ids = None           # RasterizeIds, compiled on first use (forward(triangle_ids=True))
         self.tri2d_dtype = self.project.src.structs["Tri2D"]   # projected triangle records
 
@@ -229,7 +234,7 @@ class Renderer:
         params = frame(num_pairs, num_rows)
         self._sort_and_blend(rec, params, b, model, camera, num_rows, num_pairs, max_tile_pairs, triangle_ids, alloc)
         if triangle_ids:
-            self._triangle_id_pass(rec, params, b, camera, max_tile_pairs)
+            self._triangle_id_pass(rec, params, b, camera, max_tile_pairs, model.num_triangles, num_pairs)
         times = rec.resolve()
         return ForwardResult(self, camera, model, sigma, tuple(bg), near, b, num_pairs, times, model_buffers=dev,
                              max_tile_pairs=max_tile_pairs, reused=bool(reuse))
@@ -237,9 +242,10 @@ class Renderer:
     def buffer_source(self, reuse, prefix):
         """``(bytes, name) -> buffer``: a new buffer, or with ``reuse`` this renderer's scratch
         buffer ``prefix + name`` (kept between calls, so the kernels' bind groups are too)."""
+        # the per-triangle records may outgrow one binding: bound a page at a time (gpu/chunks.py)
         if reuse:   # exact sizes: they follow the largest view, with no slack on top
-            return lambda nbytes, name: self.scratch.get(prefix + name, nbytes, grow=1.0)
-        return lambda nbytes, name: self.ctx.buffer(nbytes, name)
+            return lambda nbytes, name: self.scratch.get(prefix + name, nbytes, grow=1.0, chunked=name in CHUNKED)
+        return lambda nbytes, name: self.ctx.buffer(nbytes, name, chunked=name in CHUNKED)
 
     def _check_forward(self, model, camera, sigma, background, near):
         """The checked ``(camera, sigma, background, near)`` of :meth:`forward`; raises
@@ -257,10 +263,11 @@ class Renderer:
         c = self.ctx
         h, w = camera.height, camera.width
         tx, ty, _ = self.tiles(camera)
-        for name, nbytes in (("image", 12 * h * w), ("triangles", 12 * m),
-                             ("projected triangles", self.tri2d_dtype.itemsize * m)):
+        for name, nbytes in (("image", 12 * h * w), ("triangles", 12 * m)):
             c.check_size(name, nbytes)
-        c.check_size("sh", 12 * n * model.sh_size, chunked=True)   # bound a range of vertices at a time
+        # bound a range of vertices / triangles at a time (gpu/chunks.py)
+        c.check_size("sh", 12 * n * model.sh_size, chunked=True)
+        c.check_size("projected triangles", self.tri2d_dtype.itemsize * m, chunked=True)
         # binning loops over one row of tiles per invocation (lavapipe's loop budget)
         if tx > MAX_TILES_PER_ROW or ty > c.limits["max-compute-workgroups-per-dimension"]:
             raise ValueError(f"camera: {w}x{h} is too large; width up to {TILE * MAX_TILES_PER_ROW} px and height up "
@@ -343,11 +350,38 @@ class Renderer:
         flush("tile_sort")
         self.tile_ranges(rec.encoder, b["pair_tiles"], b["ranges"], num_pairs, prof)
         flush("tile_ranges")
-        self.blend(rec.encoder, params, b["ranges"], b["pair_tris"], b["tris"], b["image"], b["final_t"],
-                   b["n_contrib"], b["max_weight"], b["work"], tx, ty, max_tile_pairs, prof)
+        for i, (tris, window) in enumerate(self._tri_windows(rec, b, m, num_pairs, max_tile_pairs, alloc)):
+            self.blend(rec.encoder, params, b["ranges"], b["pair_tris"], tris, b["image"], b["final_t"],
+                       b["n_contrib"], b["max_weight"], b["work"], tx, ty, max_tile_pairs, prof, window, clear=i == 0)
         flush("rasterize_forward", force=not triangle_ids)
 
-    def _triangle_id_pass(self, rec, params, b, camera, max_tile_pairs):
+    def tri_windows(self, num_triangles, num_pairs, max_tile_pairs):
+        """None where a view's projected triangles fit one storage binding; else the windows of
+        its pairs ``[(lo, hi, length)]`` whose records, gathered in pair order, fit one (the last
+        window also takes the empty tiles that start after the last pair)."""
+        size = self.tri2d_dtype.itemsize
+        cap = binding_bytes(self.ctx)
+        if num_triangles * size <= cap:
+            return None
+        wins = pair_windows(num_pairs, max_tile_pairs, cap // size, "projected triangles of one window of pairs")
+        return wins[:-1] + [(wins[-1][0], 0xFFFFFFFF, wins[-1][2])]
+
+    def _tri_windows(self, rec, b, m, num_pairs, max_tile_pairs, alloc=None):
+        """Yields ``(tris binding, window)`` for the blend and ID passes: ``(b["tris"], None)``
+        where they fit one binding, else per window of pairs its records gathered into one
+        buffer (recorded before the window's blend)."""
+        wins = self.tri_windows(m, num_pairs, max_tile_pairs)
+        if wins is None:
+            yield b["tris"], None
+            return
+        size = self.tri2d_dtype.itemsize
+        out = (alloc or (lambda nbytes, name: self.ctx.buffer(nbytes, name)))(
+            size * max(max(length for _, _, length in wins), 1), "tris_window")
+        for lo, hi, length in wins:
+            self.gather(rec.encoder, b["pair_tris"], b["tris"], out, lo, length, m, size, rec.profiler)
+            yield out, (lo, hi)
+
+    def _triangle_id_pass(self, rec, params, b, camera, max_tile_pairs, m, num_pairs):
         """The ID pass over the sorted pairs in ``b``: adds ``triangle_ids`` ``[H, W]`` (ID,
         weight bits) and ``id_t`` ``[H, W]`` (its T) to ``b``."""
         c = self.ctx
@@ -357,8 +391,9 @@ class Renderer:
             self._ids = RasterizeIds(c)
         b["id_t"] = c.buffer(4 * h * w, "id_t")
         b["triangle_ids"] = c.buffer(8 * h * w, "triangle_ids")
-        self._ids(rec.encoder, params, b["ranges"], b["pair_tris"], b["tris"], b["id_t"], b["triangle_ids"],
-                  tx, ty, max_tile_pairs, rec.profiler)
+        for tris, window in self._tri_windows(rec, b, m, num_pairs, max_tile_pairs):
+            self._ids(rec.encoder, params, b["ranges"], b["pair_tris"], tris, b["id_t"], b["triangle_ids"],
+                      tx, ty, max_tile_pairs, rec.profiler, window)
         rec.flush("rasterize_ids", force=True)
 
     def triangle_ids(self, model, camera, sigma=1e-4, near=0.01, opaque=True):

@@ -175,9 +175,9 @@ def training_bytes(num_vertices, num_triangles, sh_degree, width, height, pairs,
     return out
 
 
-#: the buffers bound a range of vertices at a time (``gpu/chunks.py``): each must fit one
-#: buffer, not one binding
-CHUNKED = ("sh", "exp_avg_sh", "exp_avg_sq_sh", "v_sh")
+#: the buffers bound a range of vertices or triangles at a time, or read gathered per window of
+#: pairs (``gpu/chunks.py``): each must fit one buffer, not one binding
+CHUNKED = ("sh", "exp_avg_sh", "exp_avg_sq_sh", "v_sh", "tris", "tri_stats", "corner_grads", "opacity_reg_corners")
 
 
 def largest_model(memory_bytes, sh_degree, width, height, pairs_per_pixel, triangles_per_vertex, supersample=1,

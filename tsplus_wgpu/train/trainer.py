@@ -163,7 +163,7 @@ class Trainer:
         self.gbuf = dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh", chunked=True),
                          v_opacity=c.buffer(4 * n, "v_opacity"))
         self.pgrad = dict(positions=self.gbuf["v_positions"], sh=self.gbuf["v_sh"], logits=c.buffer(4 * n, "v_logits"))
-        self.reg_vals = c.buffer(16 * 3 * m, "opacity_reg_corners")
+        self.reg_vals = c.buffer(16 * 3 * m, "opacity_reg_corners", chunked=True)   # in ranges: gpu/chunks.py
         self.reg_out = c.buffer(16 * n, "opacity_reg_vertex")
         self.reg.set_topology(self.triangles_host)
         self.model.corner_order = (self.reg.keys, self.reg.index)   # the backward's gather order: no sort per step

@@ -17,14 +17,15 @@ Vertices: three bounds, the smallest applies.
   by vertex index) must fit one *binding* (4,194,304 vertices at 128 MiB). Until 2026-11-27 the
   SH had to fit one binding: 699,050 vertices at degree 3 and 128 MiB.
 
-Triangles: the storage-binding limit too. The largest per-triangle buffers (the projected
-triangle record ``Tri2D`` and the backward's corner gradients, 96 bytes a triangle each) bind
-before the SH once a model has more than 2 triangles per vertex, which Delaunay models have (a
-fresh one about 12), so a split is never made that would take the triangles past what one
-binding holds (1,398,101 at 128 MiB). With both bounds, densification alone can never make the
-renderer refuse the model. (The SH of lund's 658,115 vertices, 120.5 MiB, were then still under the
-binding limit.) The per-pair buffers of a view are not bounded here: they depend on how many tiles each
-triangle covers.
+Triangles: the device's limits too. The largest per-triangle buffers (the projected triangle
+record ``Tri2D`` and the backward's corner gradients, 96 bytes a triangle each) are bound a range
+of triangles at a time or read gathered per window of pairs (``gpu/chunks.py``), so they must fit
+one *buffer* (22.4 M triangles at 2 GiB); the widest bound whole must fit one *binding*: the
+pixel boxes (16 bytes: 8,388,608 triangles at 128 MiB), or with the normal loss its per-corner
+values (48 bytes: 2,796,202). A split is never made that would take the triangles past these, so
+densification alone can never make the renderer refuse the model. (Until 2026-11-27 ``Tri2D``
+had to fit one binding: 1,398,101 triangles at 128 MiB.) The per-pair buffers of a view are not
+bounded here: they depend on how many tiles each triangle covers.
 """
 
 from __future__ import annotations
@@ -41,6 +42,10 @@ CORNER_GRAD_BYTES = 32
 #: bytes of the backward's per-vertex sums (``render/backward.py``: vertex_sums), the widest
 #: per-vertex buffer bound whole
 VERTEX_SUM_BYTES = 32
+#: bytes a triangle of the widest per-triangle buffer bound whole: the pixel boxes
+#: (``render/renderer.py``: pixel_rects); with the normal loss its per-corner values (48)
+WHOLE_TRIANGLE_BYTES = 16
+NORMAL_TRIANGLE_BYTES = 48
 
 
 @dataclass(frozen=True)
@@ -65,7 +70,7 @@ class VertexCap:
     def triangles_reached(self, num_triangles):
         """The densify_stop reason when a split (3 more triangles) would pass ``triangles``."""
         return (f"storage-binding limit reached ({num_triangles:,} triangles: a split would pass {self.triangles:,}, "
-                f"the most one storage binding holds)")
+                f"the most this device's bindings and buffers hold)")
 
     def record(self):
         """The ``log.jsonl`` record of the cap (``event: vertex_cap``)."""
@@ -122,7 +127,9 @@ def vertex_cap(config, cameras, limits=None):
                    f"{_mib(vertices * VERTEX_SUM_BYTES)}, over this device's {_mib(binding)} storage-binding limit")
             vertices, bound = fit_sums, "storage-binding limit"
             detail = f"{fit_sums:,}, the most vertices whose sums fit one {_mib(binding)} binding"
-    return VertexCap(vertices, bound, detail, why, binding // per_triangle, inputs)
+    whole = NORMAL_TRIANGLE_BYTES if getattr(config, "normals", None) else WHOLE_TRIANGLE_BYTES
+    triangles = min(binding // whole, buffer // per_triangle)
+    return VertexCap(vertices, bound, detail, why, triangles, inputs)
 
 
 def initial_points_bound(config, cameras):
