@@ -125,3 +125,21 @@ def test_every_buffer_of_the_trainer_is_named_once():
     assert len(names) == len(set(names))
     names = [name for _, name, _ in training_buffers(100, 300, 3, 64, 48, 500, views=2, pair_window=100)]
     assert len(names) == len(set(names)) and "pair_ids_fresh" in names
+
+
+def test_a_model_over_the_available_memory_is_refused_before_its_buffers(renderer, monkeypatch):
+    from tsplus_wgpu.data.procedural import load_procedural
+    from tsplus_wgpu.train import memory
+    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    scene = load_procedural("tiny", num_points=60)
+    cfg = TrainConfig(iterations=10, quick=True, log_every=0, topology=False)
+    if renderer.ctx.is_cpu:   # llvmpipe: this machine's free memory, read from /proc/meminfo
+        assert memory.available_bytes(renderer.ctx) > 2**20
+    monkeypatch.setattr(memory, "available_bytes", lambda ctx: 100_000)
+    before = renderer.ctx.live_bytes()
+    with pytest.raises(ValueError, match=r"^device memory: training [\d,]+ vertices and [\d,]+ triangles on \d+ views "
+                                         r"of 64x48 needs about [\d.]+ GiB, but .* has 0.0 GiB available"):
+        Trainer(scene, cfg, renderer=renderer)
+    assert renderer.ctx.live_bytes() - before < 100_000          # the model's buffers were never made
+    monkeypatch.setattr(memory, "available_bytes", lambda ctx: None)      # unknown (a GPU): no check
+    Trainer(scene, cfg, renderer=renderer)

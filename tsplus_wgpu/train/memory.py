@@ -4,10 +4,11 @@
 :func:`training_buffers` lists every buffer alive at the peak of one training step (during the
 backward pass, when the forward's buffers are still held) with the size the code gives it:
 
-* **per vertex** (``Trainer.set_state``): positions, SH (planar ``[K, N, 3]``) and opacity logits,
-  each with Adam's two moments; the renderer's SH and opacity (positions are shared); the
-  renderer's gradients and the parameter gradients (``v_positions`` is shared); the opacity
-  loss's per-vertex sums; the forward's colours and the backward's vertex sums.
+* **per vertex** (``Trainer.set_state``): positions, SH (``[N, K, 3]``, which the renderer reads
+  as they are) and opacity logits, each with Adam's two moments; the renderer's opacity; the
+  renderer's gradients (``v_positions`` and ``v_sh`` are the parameters' too) and the logits'
+  gradient; the opacity loss's per-vertex sums; the forward's colours and the backward's vertex
+  sums.
 * **per triangle**: the index buffer, the opacity loss's corners and their order by vertex, the
   topology's running max weight; the forward's projected record ``Tri2D`` (size read from the
   WGSL), pixel boxes, depth keys and order, row offsets, max weights and the depth sort's
@@ -208,4 +209,38 @@ def largest_model(memory_bytes, sh_degree, width, height, pairs_per_pixel, trian
     return lo
 
 
-__all__ = ["CHUNKED", "FAMILIES", "training_buffers", "training_bytes", "largest_model"]
+def available_bytes(ctx):
+    """The memory ``ctx``'s device may use, where it can be known: a CPU adapter's (llvmpipe's)
+    is this machine's available memory (``MemAvailable``, /proc/meminfo). None elsewhere: wgpu
+    reports no GPU's memory."""
+    if not getattr(ctx, "is_cpu", False):
+        return None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def check_fits(ctx, num_vertices, num_triangles, sh_degree, cameras):
+    """Before a trainer makes any buffer: the one-line error when training this model on these
+    training ``cameras`` needs more than the device has (where that is known:
+    :func:`available_bytes`). The need is :func:`training_bytes` at the largest view, one
+    tile-triangle pair per pixel and every view's image on the device; densification may grow
+    it later, up to the vertex cap."""
+    avail = available_bytes(ctx)
+    if avail is None or not cameras:
+        return
+    w, h = max(c.width for c in cameras), max(c.height for c in cameras)
+    need = training_bytes(num_vertices, num_triangles, sh_degree, w, h, w * h, views=len(cameras))["total"]
+    if need > avail:
+        raise ValueError(f"device memory: training {num_vertices:,} vertices and {num_triangles:,} triangles on "
+                         f"{len(cameras)} views of {w}x{h} needs about {need / 2**30:.1f} GiB, but {ctx.name} has "
+                         f"{avail / 2**30:.1f} GiB available (this machine's free memory); use --downscale, fewer "
+                         f"initial points or a GPU")
+
+
+__all__ = ["available_bytes", "check_fits", "CHUNKED", "FAMILIES", "training_buffers", "training_bytes", "largest_model"]

@@ -59,6 +59,7 @@ from .init import SH_C0
 from .final import final_mesh
 from .initial import initial_model
 from .losses import ImageLoss
+from .memory import check_fits
 from .loop import TrainLoop
 from .normals import NormalLoss, loss_from_render
 from .schedules import SUPERSAMPLE_EVAL, logit_from_opacity
@@ -119,7 +120,9 @@ class Trainer:
         #: returns False stops training as Ctrl-C does (checkpoint, KeyboardInterrupt)
         self.step_hooks = []
         self.last_stats = None
-        cap = vertex_cap(config, [scene.cameras[i] for i in self.train_views], c.limits)
+        cams = [scene.cameras[i] for i in self.train_views]
+        check_fits(c, model.num_vertices, model.num_triangles, config.sh_degree, cams)   # before the model's buffers
+        cap = vertex_cap(config, cams, c.limits)
         self.topology = TopologyStrategy(self.sched, seed=config.seed, max_vertices=cap,
                                          stop_rel=config.densify_stop_rel, stop_windows=config.densify_stop_windows,
                                          enabled=config.topology, near=config.near)
