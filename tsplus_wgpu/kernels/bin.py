@@ -27,11 +27,11 @@ class BinItems(Stage):
                            row_offsets=row_offsets, item_rank=item_rank), profiler)
 
 
-def _pages(stage, tris):
-    """``[(ItemRange uniform, binding)]``: the projected triangles ``tris`` (``Tri2D`` records) a
-    binding's page at a time where they outgrow one (``gpu/chunks.py``), else one page of all."""
+def _pages(stage, tris, m):
+    """``[(ItemRange uniform, binding)]``: the ``m`` projected triangles ``tris`` (``Tri2D``
+    records) a binding's page at a time where they outgrow one (``gpu/chunks.py``), else one
+    page of all."""
     size = int(stage.src.structs["Tri2D"].itemsize)
-    m = tris.size // size
     pages = item_chunks(stage.ctx, m, [size])
     if len(pages) == 1:
         return [(stage.uniform("ItemRange", count=0xFFFFFFFF, first=0), tris)]
@@ -43,9 +43,11 @@ class BinCount(Stage):
     stage = "bin_count"
 
     def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, row_offsets, item_rank, counts, tile_counts,
-                 num_rows, profiler=None):
+                 num_rows, profiler=None, num_triangles=None):
+        """``num_triangles``: how many records ``tris`` holds (default: as many as fit in it)."""
         enc.clear_buffer(tile_counts)
-        for page, tri_page in _pages(self, tris):
+        m = tris.size // int(self.src.structs["Tri2D"].itemsize) if num_triangles is None else num_triangles
+        for page, tri_page in _pages(self, tris, m):
             self.dispatch(enc, self.groups(num_rows),
                           dict(params=params, tris=tri_page, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank,
                                row_offsets=row_offsets, item_rank=item_rank, counts=counts, tile_counts=tile_counts,
@@ -57,8 +59,10 @@ class BinEmit(Stage):
     stage = "bin_emit"
 
     def __call__(self, enc, params, tris, pixel_rects, tri_from_rank, row_offsets, item_rank, offsets, pair_tiles,
-                 pair_tris, num_rows, profiler=None):
-        for page, tri_page in _pages(self, tris):
+                 pair_tris, num_rows, profiler=None, num_triangles=None):
+        """``num_triangles``: as in :class:`BinCount`."""
+        m = tris.size // int(self.src.structs["Tri2D"].itemsize) if num_triangles is None else num_triangles
+        for page, tri_page in _pages(self, tris, m):
             self.dispatch(enc, self.groups(num_rows),
                           dict(params=params, tris=tri_page, pixel_rects=pixel_rects, tri_from_rank=tri_from_rank,
                                row_offsets=row_offsets, item_rank=item_rank, offsets=offsets, pair_tiles=pair_tiles,

@@ -72,21 +72,26 @@ class SegmentSum:
         self.down = SegmentDown(ctx)
         self.chunk = self.up.const("CHUNK")    # elements per chunk and level
 
-    def _pages(self, buf, width):
-        """``[(range, binding)]`` of a ``[*, width]`` vec4 buffer: one of all where it fits a binding."""
-        if buf.size <= binding_bytes(self.ctx):
-            return [(ALL, buf)]
+    def _pages(self, buf, width, count):
+        """``[(range, binding)]`` of the first ``count`` items of a ``[*, width]`` vec4 buffer: one
+        of all where it fits a binding (a scratch buffer may hold more than is used)."""
         item = 16 * width
-        return [((s, s + c), item_slice(buf, s, c, item)) for s, c in item_chunks(self.ctx, buf.size // item, [item])]
+        count = min(int(count), buf.size // item)
+        if buf.size <= binding_bytes(self.ctx) or count * item <= binding_bytes(self.ctx):
+            return [(ALL, buf)]
+        return [((s, s + c), item_slice(buf, s, c, item)) for s, c in item_chunks(self.ctx, count, [item])]
 
-    def record(self, enc, keys, index, vals, n, width, out, profiler=None, label=None, clear=True):
+    def record(self, enc, keys, index, vals, n, width, out, profiler=None, label=None, clear=True, num_keys=None):
+        """``n`` elements; their values are ``vals[index[i]]`` with ``index`` a permutation of
+        ``0 .. n-1`` (so ``n`` values); ``num_keys``: the keys ``out`` holds (default: as many as
+        it has room for), which sizes its pages where it outgrows a binding."""
         assert width in (1, 2, 5)
         if clear:
             enc.clear_buffer(out)
         if n == 0:
             return
-        outs = self._pages(out, width)
-        for vals_range, vals_page in self._pages(vals, width):
+        outs = self._pages(out, width, out.size // (16 * width) if num_keys is None else num_keys)
+        for vals_range, vals_page in self._pages(vals, width, n):
             levels = [(keys, vals_page, int(n))]
             while levels[-1][2] > self.chunk:
                 k_in, v_in, n_l = levels[-1]

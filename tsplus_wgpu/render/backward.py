@@ -237,14 +237,14 @@ class BackwardPass:
             rec.encoder.copy_buffer_to_buffer(ids, 0, pvals, 0, 4 * length)
             pk, pv = self.pair_sort.record(rec.encoder, pkeys, pvals, length, tbits, prof)
             self.pair_sum.record(rec.encoder, pk, pv, buf["partials"], length, NSTAT // 4, buf["tri_stats"], prof,
-                                 "pair_reduce", clear=i == 0)
+                                 "pair_reduce", clear=i == 0, num_keys=m)
             flush("pair_reduce")
         self.project(rec.encoder, params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"],
                      b["tris"], b["pixel_rects"], buf["tri_stats"], buf["corner_grads"], m, prof)
         flush("project_backward")
         skeys, svals = self._corner_order(rec.encoder, model, dev["triangles"], m, n, prof)
         self.corner_sum.record(rec.encoder, skeys, svals, buf["corner_grads"], 3 * m, 2, buf["vertex_sums"], prof,
-                               "corner_sum")
+                               "corner_sum", num_keys=n)
         flush("corner_sum")
         self.vertex(rec.encoder, params, dev["positions"], dev["sh"], buf["vertex_sums"], out["v_positions"],
                     out["v_sh"], out["v_opacity"], n, prof, model.sh_size)

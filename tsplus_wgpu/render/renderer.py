@@ -314,7 +314,7 @@ class Renderer:
         self.bin_items(rec.encoder, params, b["pixel_rects"], order, b["row_offsets"], b["item_rank"], m, prof)
         flush("bin_rows")
         self.bin_count(rec.encoder, params, b["tris"], b["pixel_rects"], order, b["row_offsets"], b["item_rank"],
-                       b["counts"], b["tile_counts"], num_rows, prof)
+                       b["counts"], b["tile_counts"], num_rows, prof, num_triangles=m)
         pairs_total = self.scan.record(rec.encoder, b["counts"], num_rows, profiler=prof, label="bin_count")
         self.max_reduce(rec.encoder, b["tile_counts"], b["max_tile_pairs"], ntiles, prof, "bin_count")
         flush("bin_count", force=True)
@@ -340,7 +340,7 @@ class Renderer:
         b["max_weight"] = alloc(4 * m, "max_weight")
         b["work"] = alloc(16, "work")
         self.bin_emit(rec.encoder, params, b["tris"], b["pixel_rects"], order, b["row_offsets"], b["item_rank"],
-                      b["counts"], b["pair_tiles"], b["pair_tris"], num_rows, prof)
+                      b["counts"], b["pair_tiles"], b["pair_tris"], num_rows, prof, num_triangles=m)
         flush("bin_emit")
         tile_bits = max(1, int(ntiles - 1).bit_length())
         keys, vals = self.tile_sort.record(rec.encoder, b["pair_tiles"], b["pair_tris"], num_pairs, tile_bits, prof)
