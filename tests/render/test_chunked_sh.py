@@ -152,3 +152,23 @@ def test_backward_in_pages_of_triangles(renderer, monkeypatch, chunk):
         a, b = getattr(got, key), getattr(want, key)
         assert np.abs(a - b).max() <= 1e-5 * np.abs(b).max(), key
         assert np.count_nonzero(a) == np.count_nonzero(b) > 0.5 * b.size, key
+
+
+def test_a_smaller_model_after_a_larger_one_reuses_the_grown_buffers(renderer):
+    """A scratch buffer grown past llvmpipe's 128 MiB binding by a model whose records needed
+    pages (1,450,000 triangles), then a model whose records fit one: bound to its first
+    binding's worth, the same bits as new buffers (the trainer's scratch after a prune). Bound
+    whole, it would be over the device's binding limit."""
+    from tsplus_wgpu import Renderer
+    limit = min(renderer.ctx.limits["max-storage-buffer-binding-size"], renderer.ctx.limits["max-buffer-size"])
+    m_big = max(1_450_000, limit // 96 + 50_000)
+    if 96 * m_big > renderer.ctx.limits["max-buffer-size"] or 16 * m_big > limit:
+        pytest.skip("this adapter's buffers cannot hold the model")
+    model, cam = random_scene(24, 40, 32, sh_k=1)
+    hidden = np.full((m_big, 3), 0)
+    big = TriangleModel(model.positions, np.vstack([hidden, model.triangles]), model.sh, model.opacity)
+    own = Renderer(renderer.ctx)                   # its own scratch, dropped with it
+    own.forward(big, cam, 0.5, reuse=True)
+    assert own.scratch.buffers["forward_tris"].size > limit
+    got = own.forward(model, cam, 0.5, reuse=True).image
+    np.testing.assert_array_equal(got, renderer.forward(model, cam, 0.5).image)

@@ -62,9 +62,12 @@ class Stage:
         got = set(buffers)
         if want != got:
             raise KeyError(f"{self.stage}.wgsl bindings: missing {sorted(want - got)}, unexpected {sorted(got - want)}")
+        # a whole buffer larger than one binding (a chunked array's, or a scratch buffer grown by
+        # a larger model) binds its first binding's worth: what one chunk of it uses
+        lim = int(self.ctx.limits["max-storage-buffer-binding-size"]) // 4 * 4
         entries = []
         for name, b in buffers.items():
-            buf, off, size = b if isinstance(b, Slice) else (b, 0, b.size)
+            buf, off, size = b if isinstance(b, Slice) else (b, 0, min(b.size, lim))
             entries.append((self.src.bindings[name].slot, buf, off, size))
         return self.ctx.bind_group(self.layout, entries)
 
