@@ -68,6 +68,20 @@ def item_slice(buffer, start, count, width):
     return Slice(buffer, int(start) * int(width), max(4, int(count) * int(width)))
 
 
+#: the page ``(lo, hi)`` of an array that fits one binding: every item
+ALL = (0, 0xFFFFFFFF)
+
+
+def pages(ctx_or_limits, buffer, count, width):
+    """``[(lo, hi, binding)]``: the first ``count`` items (``width`` bytes each) of ``buffer`` a
+    binding's page at a time, for kernels that read such an array at any index and skip the
+    items outside ``[lo, hi)``; one page ``(*ALL, buffer)`` where they fit one binding."""
+    chunks = item_chunks(ctx_or_limits, count, [width])
+    if len(chunks) == 1:
+        return [(*ALL, buffer)]
+    return [(s, s + c, item_slice(buffer, s, c, width)) for s, c in chunks]
+
+
 def pair_windows(num_pairs, max_tile_pairs, capacity, what="backward pair statistics"):
     """Windows of whole tiles over a view's tile-sorted pairs, for per-pair data of which one
     binding holds ``capacity`` pairs (the backward's statistics, the projected triangles in
@@ -90,4 +104,4 @@ def pair_windows(num_pairs, max_tile_pairs, capacity, what="backward pair statis
     return out
 
 
-__all__ = ["pair_windows", "CHUNK_BYTES", "Slice", "binding_bytes", "item_chunks", "item_slice"]
+__all__ = ["pair_windows", "ALL", "CHUNK_BYTES", "Slice", "binding_bytes", "item_chunks", "item_slice", "pages"]

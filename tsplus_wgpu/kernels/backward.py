@@ -5,8 +5,7 @@ and replay (``rasterize_backward``), and the chain rule to the triangles' corner
 from __future__ import annotations
 
 from ..gpu import Stage
-from ..gpu.chunks import item_chunks, item_slice
-from .project import per_vertex
+from .project import per_item
 from ..gpu.wgsl import constant
 
 #: Sufficient statistics per (triangle, tile) pair and per triangle (``shaders/common/grad_stats.wgsl``).
@@ -63,14 +62,10 @@ class ProjectBackward(Stage):
                  corner_grads, num_triangles, profiler=None):
         """In ranges of triangles where the per-triangle records outgrow one binding."""
         size = int(self.src.structs["Tri2D"].itemsize)
-        ranged = dict(tris=(tris, size), tri_stats=(tri_stats, 4 * NSTAT), corner_grads=(corner_grads, 96))
-        chunks = item_chunks(self.ctx, num_triangles, [w for _, w in ranged.values()])
-        for start, count in chunks:
-            items = self.uniform("ItemRange", count=count, first=start)
-            bound = {key: b if len(chunks) == 1 else item_slice(b, start, count, w) for key, (b, w) in ranged.items()}
-            self.dispatch(enc, self.groups(count),
-                          dict(params=params, positions=positions, triangles=triangles, opacities=opacities,
-                               colors=colors, pixel_rects=pixel_rects, items=items, **bound), profiler)
+        per_item(self, enc, num_triangles,
+                   dict(tris=(tris, size), tri_stats=(tri_stats, 4 * NSTAT), corner_grads=(corner_grads, 96)),
+                   dict(params=params, positions=positions, triangles=triangles, opacities=opacities, colors=colors,
+                        pixel_rects=pixel_rects), profiler)
 
 
 class VertexBackward(Stage):
@@ -82,7 +77,7 @@ class VertexBackward(Stage):
         (default: from the buffer's size)."""
         n = int(num_vertices)
         k = int(sh_size) if sh_size is not None else max(1, sh.size // max(12 * n, 1))
-        per_vertex(self, enc, n, dict(positions=(positions, 12), sh_coeffs=(sh, 12 * k), vertex_sums=(vertex_sums, 32),
+        per_item(self, enc, n, dict(positions=(positions, 12), sh_coeffs=(sh, 12 * k), vertex_sums=(vertex_sums, 32),
                                       v_positions=(v_positions, 12), v_sh=(v_sh, 12 * k), v_opacity=(v_opacity, 4)),
                    dict(params=params), profiler)
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..gpu import Stage
-from ..gpu.chunks import item_chunks, item_slice
+from ..gpu.chunks import pages
 
 
 class BinRows(Stage):
@@ -32,10 +32,7 @@ def _pages(stage, tris, m):
     records) a binding's page at a time where they outgrow one (``gpu/chunks.py``), else one
     page of all."""
     size = int(stage.src.structs["Tri2D"].itemsize)
-    pages = item_chunks(stage.ctx, m, [size])
-    if len(pages) == 1:
-        return [(stage.uniform("ItemRange", count=0xFFFFFFFF, first=0), tris)]
-    return [(stage.uniform("ItemRange", count=n, first=start), item_slice(tris, start, n, size)) for start, n in pages]
+    return [(stage.uniform("ItemRange", count=hi - lo, first=lo), page) for lo, hi, page in pages(stage.ctx, tris, m, size)]
 
 
 class BinCount(Stage):

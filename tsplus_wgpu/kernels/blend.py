@@ -4,7 +4,7 @@ outgrow one storage binding."""
 
 from __future__ import annotations
 
-from ..gpu.chunks import item_chunks, item_slice
+from ..gpu.chunks import pages
 from ..gpu.stage import Stage
 from ..gpu.wgsl import constant
 
@@ -86,10 +86,8 @@ class GatherTris(Stage):
     stage = "gather_tris"
 
     def __call__(self, enc, pair_tris, tris, out, lo, count, num_triangles, itemsize, profiler=None):
-        pages = item_chunks(self.ctx, num_triangles, [itemsize])
-        for start, n in pages:
-            gp = self.uniform("GatherParams", lo=lo, count=count, page_lo=start, page_hi=start + n)
-            page = tris if len(pages) == 1 else item_slice(tris, start, n, itemsize)
+        for page_lo, page_hi, page in pages(self.ctx, tris, num_triangles, itemsize):
+            gp = self.uniform("GatherParams", lo=lo, count=count, page_lo=page_lo, page_hi=page_hi)
             self.dispatch(enc, self.groups(count), dict(gp=gp, pair_tris=pair_tris, tris=page, out=out), profiler,
                           "gather_tris")
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..gpu import Stage, grid
-from ..gpu.chunks import Slice, binding_bytes, item_chunks, item_slice
+from ..gpu.chunks import Slice, binding_bytes
 from ..gpu.context import GpuContext
 from .reduce import SegmentSum
 
@@ -46,14 +46,11 @@ class TrainGrads(Stage):
                  profiler=None):
         """``v_sh`` ``[N, K, 3]`` is zeroed in place above ``active_k``; in chunks of vertices
         where it is larger than one binding."""
-        widths = dict(logits=4, v_sh=12 * k, v_opacity=4, reg=16, v_logits=4)
-        bufs = dict(logits=logits, v_sh=v_sh, v_opacity=v_opacity, reg=reg, v_logits=v_logits)
-        chunks = item_chunks(self.ctx, n, widths.values())
-        for start, count in chunks:
-            gp = self.uniform("GradParams", n=count, k=k, active_k=active_k, use_reg=int(bool(use_reg)), floor=floor)
-            bound = bufs if len(chunks) == 1 else {
-                key: item_slice(buf, start, count, widths[key]) for key, buf in bufs.items()}
-            self.dispatch(enc, self.groups(count), dict(gp=gp, **bound), profiler)
+        self.dispatch_ranges(
+            enc, n, dict(logits=(logits, 4), v_sh=(v_sh, 12 * k), v_opacity=(v_opacity, 4), reg=(reg, 16),
+                         v_logits=(v_logits, 4)), {},
+            lambda s, c: dict(gp=self.uniform("GradParams", n=c, k=k, active_k=active_k, use_reg=int(bool(use_reg)),
+                                              floor=floor)), profiler)
 
 
 class OpacityReg(Stage):
@@ -63,12 +60,10 @@ class OpacityReg(Stage):
 
     def __call__(self, enc, triangles, opacity, corner_vals, m, weight, profiler=None):
         """In ranges of triangles where ``corner_vals`` outgrows one binding."""
-        chunks = item_chunks(self.ctx, m, [48])
-        for start, count in chunks:
-            rp = self.uniform("RegParams", num_triangles=count, first=start, per_triangle=float(weight) / max(m, 1))
-            out = corner_vals if len(chunks) == 1 else item_slice(corner_vals, start, count, 48)
-            self.dispatch(enc, self.groups(count), dict(rp=rp, triangles=triangles, opacity=opacity,
-                                                         corner_vals=out), profiler)
+        per = float(weight) / max(m, 1)
+        self.dispatch_ranges(enc, m, dict(corner_vals=(corner_vals, 48)), dict(triangles=triangles, opacity=opacity),
+                             lambda s, c: dict(rp=self.uniform("RegParams", num_triangles=c, first=s, per_triangle=per)),
+                             profiler)
 
 
 class OpacityRegGradient:

@@ -5,7 +5,6 @@ the project, bin and blend kernels read."""
 from __future__ import annotations
 
 from ..gpu import Stage
-from ..gpu.chunks import item_chunks, item_slice
 from ..gpu.wgsl import constant
 
 
@@ -34,19 +33,15 @@ class ShToColor(Stage):
         """``sh_size``: K (default: from the buffer's size, ``sh.size // (12 N)``)."""
         n = int(num_vertices)
         k = int(sh_size) if sh_size is not None else max(1, sh.size // max(12 * n, 1))
-        per_vertex(self, enc, n, dict(positions=(positions, 12), sh_coeffs=(sh, 12 * k), colors=(colors, 16)),
+        per_item(self, enc, n, dict(positions=(positions, 12), sh_coeffs=(sh, 12 * k), colors=(colors, 16)),
                    dict(params=params), profiler)
 
 
-def per_vertex(stage, enc, n, arrays, fixed, profiler=None):
-    """Dispatch ``stage`` over ``n`` items: ``arrays`` ``{binding: (buffer, bytes per item)}``
-    bound one range of items at a time where any is larger than a binding (``items``: that
-    range's count), ``fixed`` ``{binding: buffer}`` bound whole."""
-    chunks = item_chunks(stage.ctx, n, [w for _, w in arrays.values()])
-    for start, count in chunks:
-        items = stage.uniform("ItemRange", count=count, first=start)
-        bound = {key: b if len(chunks) == 1 else item_slice(b, start, count, w) for key, (b, w) in arrays.items()}
-        stage.dispatch(enc, stage.groups(count), dict(fixed, items=items, **bound), profiler)
+def per_item(stage, enc, n, arrays, fixed, profiler=None):
+    """:meth:`~tsplus_wgpu.gpu.Stage.dispatch_ranges` for the per-vertex and per-triangle kernels, whose uniform
+    ``items`` is the range (``ItemRange``)."""
+    stage.dispatch_ranges(enc, n, arrays, fixed, lambda s, c: dict(items=stage.uniform("ItemRange", count=c, first=s)),
+                          profiler)
 
 
 class ProjectTriangles(Stage):
@@ -56,12 +51,6 @@ class ProjectTriangles(Stage):
     def __call__(self, enc, params, positions, triangles, opacities, colors, tris, pixel_rects, depth_keys,
                  tri_ids, num_triangles, profiler=None):
         """In ranges of triangles where ``tris`` outgrows one binding (``gpu/chunks.py``)."""
-        size = int(self.src.structs["Tri2D"].itemsize)
-        chunks = item_chunks(self.ctx, num_triangles, [size])
-        for start, count in chunks:
-            items = self.uniform("ItemRange", count=count, first=start)
-            out = tris if len(chunks) == 1 else item_slice(tris, start, count, size)
-            self.dispatch(enc, self.groups(count),
-                          dict(params=params, positions=positions, triangles=triangles, opacities=opacities,
-                               colors=colors, tris=out, pixel_rects=pixel_rects, depth_keys=depth_keys,
-                               tri_ids=tri_ids, items=items), profiler)
+        per_item(self, enc, num_triangles, dict(tris=(tris, int(self.src.structs["Tri2D"].itemsize))),
+                   dict(params=params, positions=positions, triangles=triangles, opacities=opacities, colors=colors,
+                        pixel_rects=pixel_rects, depth_keys=depth_keys, tri_ids=tri_ids), profiler)

@@ -4,10 +4,7 @@ segmented sum (``segment_up``, ``segment_down``; composed by :class:`SegmentSum`
 from __future__ import annotations
 
 from ..gpu import Stage
-from ..gpu.chunks import binding_bytes, item_chunks, item_slice
-
-#: all values, all keys: the SegParams ranges of a sum whose arrays fit one binding
-ALL = (0, 0xFFFFFFFF)
+from ..gpu.chunks import ALL, pages
 
 
 class MaxReduce(Stage):
@@ -76,10 +73,7 @@ class SegmentSum:
         """``[(range, binding)]`` of the first ``count`` items of a ``[*, width]`` vec4 buffer: one
         of all where it fits a binding (a scratch buffer may hold more than is used)."""
         item = 16 * width
-        count = min(int(count), buf.size // item)
-        if buf.size <= binding_bytes(self.ctx) or count * item <= binding_bytes(self.ctx):
-            return [(ALL, buf)]
-        return [((s, s + c), item_slice(buf, s, c, item)) for s, c in item_chunks(self.ctx, count, [item])]
+        return [((lo, hi), page) for lo, hi, page in pages(self.ctx, buf, min(int(count), buf.size // item), item)]
 
     def record(self, enc, keys, index, vals, n, width, out, profiler=None, label=None, clear=True, num_keys=None):
         """``n`` elements; their values are ``vals[index[i]]`` with ``index`` a permutation of
