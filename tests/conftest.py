@@ -22,6 +22,16 @@ def ctx(renderer):
     return renderer.ctx
 
 
+@pytest.fixture(scope="session")
+def layout_renderers(renderer):
+    """A renderer per kernel layout (``GpuContext.layout``) on the test adapter: the session's
+    own for its layout, another device for the other, so CI tests both on lavapipe."""
+    from tsplus_wgpu import Renderer
+    from tsplus_wgpu.gpu import LAYOUTS, GpuContext
+    return {name: renderer if name == renderer.ctx.layout else Renderer(GpuContext(renderer.ctx.adapter, layout=name))
+            for name in LAYOUTS}
+
+
 def pytest_report_header(config):
     try:
         from tsplus_wgpu.gpu import adapter_description, select_adapter

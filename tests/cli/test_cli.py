@@ -37,10 +37,11 @@ def test_render_main_job(tmp_path, capsys):
 def test_bench_raster_writes_finite_report(tmp_path, capsys):
     out = tmp_path / "r.json"
     assert main(["bench-raster", "--triangles", "500", "2000", "--width", "64", "--height", "48",
-                 "--repeats", "2", "--json", str(out)]) == 0
+                 "--repeats", "2", "--json", str(out), "--layout", "gpu"]) == 0
     rep = json.loads(out.read_text())
     assert rep["adapter"] and rep["peak"]["flops_per_s"] > 0
-    assert rep["layout"].startswith("lavapipe's: 16 invocations a 16x16 tile") and "kernel layout" in capsys.readouterr().out
+    assert rep["layout"].startswith("gpu (forward 256 invocations a 16x16 tile, 1 px each")
+    assert "kernel layout: gpu (" in capsys.readouterr().out
     assert [r["triangles"] for r in rep["rows"]] == [500, 2000]
     for r in rep["rows"]:
         assert "rasterize_forward" in r["stage_ms_median"]

@@ -263,3 +263,22 @@ def test_too_wide_image_is_rejected(renderer):
     wide = look_at_camera(16 * 16384 + 1, 1)
     with pytest.raises(ValueError, match="camera: .* is too large"):
         renderer.forward(model, wide, 1.0)
+
+
+def test_kernel_layout_follows_the_adapter_type_and_is_overridable(ctx, monkeypatch):
+    from tsplus_wgpu.kernels.blend import kernel_layout
+    monkeypatch.delenv("TSPLUS_LAYOUT", raising=False)
+    assert gpu.choose_layout({"adapter_type": "CPU"}) == "cpu"
+    for kind in ("DiscreteGPU", "IntegratedGPU", "VirtualGPU", "Unknown"):
+        assert gpu.choose_layout({"adapter_type": kind}) == "gpu"
+    monkeypatch.setenv("TSPLUS_LAYOUT", "gpu")
+    assert gpu.choose_layout({"adapter_type": "CPU"}) == "gpu"
+    assert gpu.choose_layout({"adapter_type": "CPU"}, "cpu") == "cpu"       # the argument wins
+    monkeypatch.setenv("TSPLUS_LAYOUT", "wide")
+    with pytest.raises(ValueError, match="TSPLUS_LAYOUT: expected one of cpu, gpu, got 'wide'"):
+        gpu.choose_layout({"adapter_type": "CPU"})
+    with pytest.raises(ValueError, match="layout: expected one of cpu, gpu"):
+        gpu.GpuContext(ctx.adapter, layout="pixels")
+    assert kernel_layout(ctx).startswith(ctx.layout + " (")
+    assert "forward 256 invocations a 16x16 tile, 1 px each" in kernel_layout(gpu.GpuContext(ctx.adapter, layout="gpu"))
+    assert "backward 16 invocations a 16x16 tile, 16 px each" in kernel_layout(gpu.GpuContext(ctx.adapter, layout="cpu"))

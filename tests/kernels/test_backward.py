@@ -11,7 +11,8 @@ import pytest
 from scenes import f32_exact, random_scene
 
 from tsplus_wgpu.kernels.project import frame_params
-from tsplus_wgpu.kernels.backward import NSTAT, BackwardPrepare, ProjectBackward, RasterizeBackward, VertexBackward
+from tsplus_wgpu.kernels.backward import (NSTAT, BackwardPrepare, ProjectBackward, RasterizeBackward,
+                                          RasterizeBackwardGpu, VertexBackward)
 from scenes import submit as run
 # (the package's attribute ``backward`` is the whole-backward twin function, so the module by name)
 twin = importlib.import_module("tsplus_wgpu.reference.backward")
@@ -82,11 +83,29 @@ def test_backward_prepare(renderer, case):
 
 @pytest.mark.parametrize("case", CASES)
 @pytest.mark.parametrize("rounds_per_pass", [None, 1])
-def test_rasterize_backward(renderer, case, rounds_per_pass):
+def test_rasterize_backward(renderer, layout_renderers, case, rounds_per_pass):
     """The replay and its 19 statistics per pair; in one pass per tile, and in passes of one
     round (the state carried between dispatches)."""
-    c, d = renderer.ctx, forward_data(renderer, case)
-    k = RasterizeBackward(c)
+    check_backward(layout_renderers["cpu"].ctx, RasterizeBackward, forward_data(renderer, case), rounds_per_pass)
+
+
+@pytest.mark.parametrize("case", CASES)
+@pytest.mark.parametrize("rounds_per_pass", [None, 1])
+def test_rasterize_backward_gpu(renderer, layout_renderers, case, rounds_per_pass):
+    """The GPU layout (one invocation a pixel): the same checks, and the CPU layout's work
+    counts and last pairs exactly, its floats within rounding (the sums go in another order)."""
+    d = forward_data(renderer, case)
+    got = check_backward(layout_renderers["gpu"].ctx, RasterizeBackwardGpu, d, rounds_per_pass)
+    other = check_backward(layout_renderers["cpu"].ctx, RasterizeBackward, d, None)
+    np.testing.assert_array_equal(got[2], other[2])
+    np.testing.assert_array_equal(got[0][:, 3].view(np.uint32), other[0][:, 3].view(np.uint32))
+    assert_scaled(got[0][:, :3], other[0][:, :3], 1e-6, "state against the CPU layout")
+    assert_scaled(got[1], other[1], 1e-5, "partials against the CPU layout")
+
+
+def check_backward(c, cls, d, rounds_per_pass):
+    """``cls`` on ``c`` against the twin; returns (state [H*W, 4], partials [P, NSTAT], work)."""
+    k = cls(c)
     if rounds_per_pass is not None:
         k.rounds_per_pass = rounds_per_pass
     cam, P = d["cam"], d["num_pairs"]
@@ -94,7 +113,7 @@ def test_rasterize_backward(renderer, case, rounds_per_pass):
     state0, st, last = prepared(d)
     max_range = int((d["ranges"][:, 1] - d["ranges"][:, 0]).max())
     if rounds_per_pass is not None:
-        assert max_range > 3 * k.pairs_per_round     # several passes
+        assert max_range > 2 * k.pairs_per_round     # three passes or more
     bufs = {name: c.upload(np.ascontiguousarray(d[name]), name) for name in ("ranges", "pair_tris", "tris", "v_out")}
     state, partials, work = c.upload(state0, "state"), c.buffer(4 * NSTAT * P, "partials"), c.buffer(16, "work")
     params = frame_params(k, cam, d["sigma"], BG, **sizes(d["model"], P))
@@ -103,12 +122,14 @@ def test_rasterize_backward(renderer, case, rounds_per_pass):
     want_p, want_s, want_w = twin.rasterize_backward(d["tris"], d["ranges"], d["pair_tris"], d["v_out"], st, last,
                                                      cam.width, cam.height, tx, d["sigma"])
     got_s = c.read(state, np.float32, state0.size).reshape(-1, 4)
-    np.testing.assert_array_equal(c.read(work, np.uint32, 3), want_w)
+    got_w = c.read(work, np.uint32, 3)
+    np.testing.assert_array_equal(got_w, want_w)
     np.testing.assert_array_equal(got_s[:, 3].view(np.uint32), last)
     assert_scaled(got_s[:, :3], want_s, 1e-5, "state (T, acc, Z)")
     got_p = c.read(partials, np.float32, NSTAT * P).reshape(P, NSTAT)
     assert np.abs(want_p[:, :19]).max(axis=0).min() > 0     # every statistic is exercised
     assert_scaled(got_p, want_p, 2e-5, "partials")
+    return got_s, got_p, got_w
 
 
 @pytest.mark.parametrize("case", CASES)

@@ -10,7 +10,8 @@ import pytest
 from scenes import f32_exact, look_at_camera, random_scene, submit as _run
 
 from tsplus_wgpu import TriangleModel, reference
-from tsplus_wgpu.kernels.blend import RasterizeForward, RasterizeIds
+from tsplus_wgpu.kernels.blend import (RasterizeForward, RasterizeForwardGpu, RasterizeIds, RasterizeIdsGpu,
+                                       forward_stage)
 
 CASES = [((17, 33), 1.0), ((256, 192), 0.5), ((96, 64), 0.1), ((64, 48), 1e-4)]
 BG = (0.2, 0.3, 0.4)
@@ -57,7 +58,7 @@ def forward_alone(renderer, res, cam, sigma, pair_tris, ranges, stage=None):
 def ids_alone(renderer, res, cam, sigma, pair_tris, ranges, stage=None):
     """RasterizeIds alone: (ids [H, W] int32, weights [H, W] float32, T [H, W])."""
     c, h, w = renderer.ctx, cam.height, cam.width
-    b = run_blend(renderer, stage or RasterizeIds(c), res, cam, sigma, pair_tris, ranges,
+    b = run_blend(renderer, stage or forward_stage(c, triangle_ids=True), res, cam, sigma, pair_tris, ranges,
                   dict(id_t=4 * h * w, id_state=8 * h * w))
     state = c.read(b["id_state"], np.uint32, 2 * h * w).reshape(h, w, 2)
     return (state[..., 0].astype(np.int32), np.ascontiguousarray(state[..., 1]).view(np.float32),
@@ -73,7 +74,27 @@ def small_passes(cls, pairs):
 
 
 @pytest.mark.parametrize("size,sigma", CASES, ids=[f"{w}x{h}-{s}" for (w, h), s in CASES])
-def test_rasterize_forward(renderer, size, sigma):
+def test_rasterize_forward(layout_renderers, size, sigma):
+    check_forward(layout_renderers["cpu"], RasterizeForward, size, sigma)
+
+
+@pytest.mark.parametrize("size,sigma", CASES, ids=[f"{w}x{h}-{s}" for (w, h), s in CASES])
+def test_rasterize_forward_gpu(layout_renderers, size, sigma):
+    """The GPU layout (one invocation a pixel): the same checks, and the same integer outputs
+    as the CPU layout's, its floats within rounding of them."""
+    image, final_t, state, max_weight, work = check_forward(layout_renderers["gpu"], RasterizeForwardGpu, size, sigma)
+    other = check_forward(layout_renderers["cpu"], RasterizeForward, size, sigma)
+    np.testing.assert_array_equal(state, other[2])
+    np.testing.assert_array_equal(work, other[4])
+    np.testing.assert_allclose(image, other[0], rtol=0, atol=2e-6)
+    np.testing.assert_allclose(final_t, other[1], rtol=0, atol=2e-6)
+    np.testing.assert_allclose(max_weight, other[3], rtol=0, atol=2e-6)
+
+
+def check_forward(renderer, cls, size, sigma):
+    """The blend of ``cls`` (``renderer``'s own layout) alone against the twin, inside the
+    renderer, and in passes of 7 pairs; returns its outputs."""
+    assert type(renderer.blend) is cls
     model, cam = f32_exact(*random_scene(21 + size[0], *size, sheets=6, points_per_sheet=30, sh_k=4))
     res, order, pair_tris, ranges, proj = blend_inputs(renderer, model, cam, sigma)
     image, final_t, state, max_weight, work = forward_alone(renderer, res, cam, sigma, pair_tris, ranges)
@@ -95,19 +116,33 @@ def test_rasterize_forward(renderer, size, sigma):
     np.testing.assert_array_equal(last, res.n_contrib)
     np.testing.assert_array_equal(max_weight, res.max_weight)
     # in passes of 7 pairs per tile (the pixel state carried in the outputs): bit for bit the same
-    small = small_passes(RasterizeForward, 7)(renderer.ctx)
+    small = small_passes(cls, 7)(renderer.ctx)
     if size[0] >= 64:
         assert int((ranges[:, 1].astype(np.int64) - ranges[:, 0]).max()) > 14    # three passes or more
     again = forward_alone(renderer, res, cam, sigma, pair_tris, ranges, small)
     for a, b in zip(again, (image, final_t, state, max_weight, work)):
         np.testing.assert_array_equal(a, b)
+    return image, final_t, state, max_weight, work
 
 
 @pytest.mark.parametrize("size,sigma", CASES, ids=[f"{w}x{h}-{s}" for (w, h), s in CASES])
-def test_rasterize_ids(renderer, size, sigma):
+def test_rasterize_ids(layout_renderers, size, sigma):
+    check_ids(layout_renderers["cpu"], RasterizeIds, size, sigma)
+
+
+@pytest.mark.parametrize("size,sigma", CASES, ids=[f"{w}x{h}-{s}" for (w, h), s in CASES])
+def test_rasterize_ids_gpu_layout(layout_renderers, size, sigma):
+    """The ID pass in the GPU layout: the same checks, the same IDs as the CPU layout's."""
+    ids, weights, id_t = check_ids(layout_renderers["gpu"], RasterizeIdsGpu, size, sigma)
+    other = check_ids(layout_renderers["cpu"], RasterizeIds, size, sigma)
+    np.testing.assert_array_equal(ids, other[0])
+    np.testing.assert_allclose(weights, other[1], rtol=0, atol=2e-6)
+
+
+def check_ids(renderer, cls, size, sigma):
     model, cam = f32_exact(*random_scene(31 + size[0], *size, sheets=6, points_per_sheet=30, sh_k=4))
     res, order, pair_tris, ranges, proj = blend_inputs(renderer, model, cam, sigma)
-    ids, weights, id_t = ids_alone(renderer, res, cam, sigma, pair_tris, ranges)
+    ids, weights, id_t = ids_alone(renderer, res, cam, sigma, pair_tris, ranges, cls(renderer.ctx))
     ref = reference.rasterize_ids(proj, order, cam.width, cam.height, sigma=sigma)
     drawn = ref.weight > 0
     ok = ~ref.ambiguous & ~(drawn & (ref.weight - ref.second <= 1e-4 * ref.weight + 1e-7))
@@ -119,9 +154,10 @@ def test_rasterize_ids(renderer, size, sigma):
     np.testing.assert_array_equal(id_t, res.transmittance)
     np.testing.assert_array_equal(ids < 0, id_t == 1.0)
     # in passes of 7 pairs per tile: bit for bit the same
-    again = ids_alone(renderer, res, cam, sigma, pair_tris, ranges, small_passes(RasterizeIds, 7)(renderer.ctx))
+    again = ids_alone(renderer, res, cam, sigma, pair_tris, ranges, small_passes(cls, 7)(renderer.ctx))
     for a, b in zip(again, (ids, weights, id_t)):
         np.testing.assert_array_equal(a, b)
+    return ids, weights, id_t
 
 
 # ---- the ID pass end to end (Renderer.forward(..., triangle_ids=True))

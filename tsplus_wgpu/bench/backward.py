@@ -93,7 +93,7 @@ def backward_report(renderer, m=100_000, width=640, height=480, sigma=0.5, repea
     ctx = renderer.ctx
     peak = measure_peak_flops(ctx)
     row = bench_backward(renderer, m, width, height, sigma, repeats, progress=progress)
-    return {"adapter": ctx.name, "adapter_info": {k: str(v) for k, v in ctx.info.items()}, "layout": kernel_layout(),
+    return {"adapter": ctx.name, "adapter_info": {k: str(v) for k, v in ctx.info.items()}, "layout": kernel_layout(ctx),
             "timing": "timestamp queries" if ctx.features.timestamps else "host (per-stage submits)",
             "host": platform.node(), "date": time.strftime("%Y-%m-%d %H:%M:%S"), "peak": peak, "row": row,
             "backward_blend_flops_model": BACKWARD_BLEND_FLOPS, "commit": git_commit()}

@@ -117,7 +117,7 @@ def raster_report(renderer, counts, width=640, height=480, sigma=0.5, repeats=5,
                         progress=progress)
     return {
         "adapter": ctx.name, "adapter_info": {k: str(v) for k, v in ctx.info.items()},
-        "layout": kernel_layout(),
+        "layout": kernel_layout(ctx),
         "timing": "timestamp queries" if ctx.features.timestamps else "host (per-stage submits)",
         "commit": git_commit(), "host": platform.node(), "python": platform.python_version(),
         "date": time.strftime("%Y-%m-%d %H:%M:%S"), "peak": peak, "rows": rows,

@@ -380,7 +380,7 @@ def _start(out, adapter, progress, fresh, command, smoke, plans):
     bench = Bench(out, renderer, mr, progress=progress, fresh=fresh)
     meta = dict(adapter=ctx.name, is_cpu=bool(ctx.is_cpu), commit=git_commit(), date=time.strftime("%Y-%m-%d %H:%M:%S"),
                 host=platform.node(), cpus=os.cpu_count(), python=platform.python_version(), command=command,
-                timing=timing_name(ctx), layout=kernel_layout(), loadavg_start=list(os.getloadavg()), smoke=bool(smoke),
+                timing=timing_name(ctx), layout=kernel_layout(ctx), loadavg_start=list(os.getloadavg()), smoke=bool(smoke),
                 _peaks=bench.peaks)
     print(f"adapter: {ctx.name}; commit {meta['commit']}; scenes: {', '.join(p.name for p in plans)}", flush=True)
     return bench, meta

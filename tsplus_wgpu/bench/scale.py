@@ -151,7 +151,7 @@ def scale_report(renderer, sizes=SCALE_SIZES, width=1920, height=1080, sh_degree
             log(format_row(rows[-1]))
     return {"adapter": ctx.name, "timing": timing_name(ctx),
             "storage_binding_bytes": int(ctx.limits["max-storage-buffer-binding-size"]),
-            "layout": kernel_layout(), "commit": git_commit(), "python": platform.python_version(),
+            "layout": kernel_layout(ctx), "commit": git_commit(), "python": platform.python_version(),
             "sigma": sigma, "repeats": int(repeats), "rows": rows}
 
 

@@ -14,6 +14,21 @@ def add_adapter_arg(p):
                         "default: TSPLUS_ADAPTER or the best one (discrete GPU first)")
 
 
+def add_layout_arg(p):
+    """The ``--layout`` option of the benchmarks: the blend kernels' layout."""
+    p.add_argument("--layout", default=None, choices=("cpu", "gpu"),
+                   help="the blend kernels' layout: cpu (16 invocations a 16x16 tile, a column of 16 pixels each) "
+                        "or gpu (one invocation a pixel); default: TSPLUS_LAYOUT or the adapter's type "
+                        "(cpu on a CPU adapter such as lavapipe)")
+
+
+def layout_renderer(args):
+    """A :class:`~tsplus_wgpu.Renderer` on ``args.adapter`` in ``args.layout``."""
+    from ..gpu import GpuContext
+    from ..render.renderer import Renderer
+    return Renderer(GpuContext(args.adapter, layout=getattr(args, "layout", None)))
+
+
 def add_parser(sub):
     return sub.add_parser("adapters", help="list the GPU adapters wgpu sees, with features and the chosen one")
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..bench.plans import DEFAULT_PLANS, default_scenes
-from .adapters import add_adapter_arg
+from .adapters import add_adapter_arg, add_layout_arg, layout_renderer
 
 
 # ---------------------------------------------------------------------------------------- tsplus bench
@@ -142,6 +142,7 @@ def add_raster_parser(sub):
     p.add_argument("--repeats", type=int, default=5, help="timed runs per size; medians are reported (default 5)")
     p.add_argument("--json", default=None, help="write the full result as JSON here")
     add_adapter_arg(p)
+    add_layout_arg(p)
     return p
 
 
@@ -160,8 +161,7 @@ def run_bench_raster(args):
 
     from .. import reference
     from ..bench.raster import format_table, raster_report
-    from ..render.renderer import Renderer
-    renderer = Renderer(args.adapter)
+    renderer = layout_renderer(args)
     counts = [int(c) for c in args.triangles]
     bars = []
 
@@ -197,14 +197,14 @@ def add_backward_parser(sub):
     p.add_argument("--sigma", type=float, default=0.5)
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--json", default=None, help="write the result here")
+    add_layout_arg(p)
     return p
 
 
 def run_bench_backward(args):
     """``tsplus bench-backward``: the table, and the result as JSON with ``--json``."""
     from ..bench.backward import backward_report, format_table
-    from ..render.renderer import Renderer
-    renderer = Renderer(args.adapter)
+    renderer = layout_renderer(args)
     print(f"adapter: {renderer.ctx.name}", flush=True)
     result = backward_report(renderer, args.triangles, args.width, args.height, args.sigma, args.repeats,
                              progress=lambda: print(".", end="", flush=True))
@@ -257,6 +257,7 @@ def add_scale_parser(sub):
     p.add_argument("--train-size", default="960x540", metavar="WxH", help="training image size (default 960x540)")
     p.add_argument("--json", default=None, help="write the result here")
     add_adapter_arg(p)
+    add_layout_arg(p)
     return p
 
 
@@ -303,8 +304,7 @@ def run_bench_scale(args):
 def _run_report(args, report, fmt):
     """A renderer on ``--adapter`` and its name, ``report(renderer, log)`` (lines printed as they
     come), the result as ``fmt`` writes it, and JSON with ``--json``. Exit code 0."""
-    from ..render.renderer import Renderer
-    renderer = Renderer(args.adapter)
+    renderer = layout_renderer(args)
     print(f"adapter: {renderer.ctx.name}", flush=True)
     result = report(renderer, lambda line: print(line, flush=True))
     print()
@@ -332,6 +332,7 @@ def add_step_parser(sub):
     p.add_argument("--blocks", type=int, default=8, help="blocks per mode (default 8)")
     p.add_argument("--json", default=None, help="write the result here")
     add_adapter_arg(p)
+    add_layout_arg(p)
     return p
 
 

@@ -130,6 +130,23 @@ def adapter_size_limits(available):
     return out
 
 
+#: the blend kernels' layouts (``GpuContext.layout``)
+LAYOUTS = ("cpu", "gpu")
+
+
+def choose_layout(info, layout=None):
+    """``layout`` if given, else ``TSPLUS_LAYOUT``, else ``"cpu"`` for a CPU adapter (by its
+    ``info["adapter_type"]``) and ``"gpu"`` for any other."""
+    source = "layout"
+    if layout is None:
+        layout, source = os.environ.get("TSPLUS_LAYOUT") or None, "TSPLUS_LAYOUT"
+    if layout is None:
+        return "cpu" if info.get("adapter_type") == "CPU" else "gpu"
+    if layout not in LAYOUTS:
+        raise ValueError(f"{source}: expected one of {', '.join(LAYOUTS)}, got {layout!r}")
+    return layout
+
+
 @dataclass
 class Features:
     timestamps: bool = False
@@ -150,14 +167,18 @@ class GpuContext:
         poison: fill every new scratch/output buffer with 0xFF bytes (NaN as float, 2^32-1
             as u32) to catch kernels that rely on zero-initialised memory; also on with
             ``TSPLUS_POISON=1``. For tests and debugging.
+        layout: the blend kernels' layout (:data:`LAYOUTS`): ``"cpu"`` (16 invocations a tile,
+            16 pixels each, for CPU drivers) or ``"gpu"`` (one invocation a pixel); default
+            ``TSPLUS_LAYOUT`` or, unset, the adapter's class (``"cpu"`` on a CPU adapter).
     """
 
-    def __init__(self, adapter=None, limits=None, poison=None):
+    def __init__(self, adapter=None, limits=None, poison=None, layout=None):
         self.poison = (os.environ.get("TSPLUS_POISON") == "1") if poison is None else bool(poison)
         if adapter is None or isinstance(adapter, str):
             adapter = select_adapter(adapter)
         self.adapter = adapter
         self.info = dict(adapter.info)
+        self.layout = choose_layout(self.info, layout)
         available = dict(adapter.limits)
         req = dict(WEBGPU_DEFAULT_LIMITS)
         if limits == "webgpu" or os.environ.get("TSPLUS_WEBGPU_LIMITS") == "1":

@@ -52,7 +52,19 @@ class RasterizeBackward(Stage):
                               gathered=int(bool(gathered)))
             self.dispatch(enc, (tiles_x, tiles_y, 1),
                           dict(params=params, pp=pp, ranges=ranges, pair_tris=pair_tris, tris=tris, v_out=v_out,
-                               state=state, partials=partials, work=work), profiler)
+                               state=state, partials=partials, work=work), profiler, "rasterize_backward")
+
+
+class RasterizeBackwardGpu(RasterizeBackward):
+    """The same backward blend in the GPU layout (``rasterize_backward_gpu.wgsl``: one
+    invocation a pixel, 256 a tile): the same bindings, rounds, windows and outputs."""
+
+    stage = "rasterize_backward_gpu"
+
+
+def backward_stage(ctx):
+    """The backward blend in ``ctx``'s kernel layout (:attr:`~tsplus_wgpu.gpu.GpuContext.layout`)."""
+    return (RasterizeBackwardGpu if ctx.layout == "gpu" else RasterizeBackward)(ctx)
 
 
 class ProjectBackward(Stage):
@@ -82,4 +94,5 @@ class VertexBackward(Stage):
                    dict(params=params), profiler)
 
 
-__all__ = ["NSTAT", "BackwardPrepare", "RasterizeBackward", "ProjectBackward", "VertexBackward"]
+__all__ = ["NSTAT", "BackwardPrepare", "RasterizeBackward", "RasterizeBackwardGpu", "backward_stage", "ProjectBackward",
+           "VertexBackward"]

@@ -13,13 +13,19 @@ from ..gpu.wgsl import constant
 BLEND_PASS_PAIRS = constant("PASS_PAIRS", "rasterize_forward")
 
 
-def kernel_layout():
-    """The blend kernels' layout as the benchmarks name it, read from the WGSL: the invocations
-    of one tile's workgroup and the pixels each one blends (one layout today: lavapipe's)."""
-    tile, threads = int(constant("TILE", "frame")), int(constant("THREADS", "rasterize_forward"))
-    if int(constant("THREADS", "rasterize_backward")) != threads:
-        raise RuntimeError("rasterize_forward and rasterize_backward disagree on THREADS: name both layouts here")
-    return f"lavapipe's: {threads} invocations a {tile}x{tile} tile, {tile * tile // threads} pixels each"
+def kernel_layout(ctx=None):
+    """The blend kernels' layout as the benchmarks name it, read from the WGSL of the layout
+    ``ctx`` uses (:attr:`~tsplus_wgpu.gpu.GpuContext.layout`; None: the one of the default
+    adapter's class is not known here, so the CPU layout): each kernel's invocations a tile and
+    pixels each."""
+    name = "cpu" if ctx is None else ctx.layout
+    suffix = "" if name == "cpu" else "_gpu"
+    tile = int(constant("TILE", "frame"))
+    parts = []
+    for kernel, short in (("rasterize_forward", "forward"), ("rasterize_backward", "backward")):
+        threads = int(constant("THREADS", kernel + suffix))
+        parts.append(f"{short} {threads} invocations a {tile}x{tile} tile, {tile * tile // threads} px each")
+    return f"{name} ({'; '.join(parts)})"
 
 
 class RasterizeForward(Stage):
@@ -56,6 +62,13 @@ class RasterizeForward(Stage):
                     window)
 
 
+class RasterizeForwardGpu(RasterizeForward):
+    """The same blend in the GPU layout (``rasterize_forward_gpu.wgsl``: one invocation a pixel,
+    256 a tile): the same bindings, passes and outputs."""
+
+    stage = "rasterize_forward_gpu"
+
+
 class RasterizeIds(RasterizeForward):
     """The triangle-ID pass: ``rasterize_forward.wgsl`` with ``TRIANGLE_IDS`` set, walking the
     same sorted tile lists in as many passes."""
@@ -78,6 +91,20 @@ class RasterizeIds(RasterizeForward):
                                               work=ph), tiles_x, tiles_y, profiler, window)
 
 
+class RasterizeIdsGpu(RasterizeIds):
+    """The triangle-ID pass in the GPU layout."""
+
+    stage = "rasterize_forward_gpu"
+
+
+def forward_stage(ctx, triangle_ids=False):
+    """The forward blend (or, with ``triangle_ids``, the ID pass) in ``ctx``'s kernel layout."""
+    gpu = ctx.layout == "gpu"
+    if triangle_ids:
+        return (RasterizeIdsGpu if gpu else RasterizeIds)(ctx)
+    return (RasterizeForwardGpu if gpu else RasterizeForward)(ctx)
+
+
 class GatherTris(Stage):
     """The projected triangles of pairs ``[lo, lo + count)`` in pair order (``out[p] =
     tris[pair_tris[lo + p]]``), reading ``tris`` a binding's page of triangles at a time: where
@@ -92,4 +119,5 @@ class GatherTris(Stage):
                           "gather_tris")
 
 
-__all__ = ["BLEND_PASS_PAIRS", "RasterizeForward", "RasterizeIds", "GatherTris"]
+__all__ = ["BLEND_PASS_PAIRS", "kernel_layout", "forward_stage", "RasterizeForward", "RasterizeForwardGpu",
+           "RasterizeIds", "RasterizeIdsGpu", "GatherTris"]

@@ -260,5 +260,9 @@ def vertex_backward(positions, sh, vertex_sums, cam_center):
     return v_pos, v_sh, sums[:, 0, 3].copy()
 
 
-__all__ = ["NSTAT", "backward_prepare", "rasterize_backward", "project_backward", "vertex_backward",
+#: the GPU layout's backward blend (``rasterize_backward_gpu.wgsl``) is the same model: the same twin
+rasterize_backward_gpu = rasterize_backward
+
+
+__all__ = ["NSTAT", "backward_prepare", "rasterize_backward", "rasterize_backward_gpu", "project_backward", "vertex_backward",
            "min_vertex", "sh_basis_grad"]

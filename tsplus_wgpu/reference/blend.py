@@ -99,6 +99,10 @@ class IdResult:
     ambiguous: np.ndarray   # [H, W] a discrete decision was within rounding of flipping (as rasterize_forward)
 
 
+#: the GPU layout's forward (``rasterize_forward_gpu.wgsl``) is the same model: the same twin
+rasterize_forward_gpu = rasterize_forward
+
+
 def rasterize_ids(proj, order, width, height, ambiguity_tol=1e-4, sigma=None):
     """Twin of the triangle-ID pass (rasterize_forward with ``TRIANGLE_IDS``) on projected
     triangles ``proj`` (a :class:`Projection`) drawn in ``order``. ``sigma`` is the window

@@ -37,7 +37,7 @@ import wgpu
 
 from ..gpu.chunks import binding_bytes, pair_windows
 from ..gpu.recorder import Recorder
-from ..kernels.backward import NSTAT, BackwardPrepare, ProjectBackward, RasterizeBackward, VertexBackward
+from ..kernels.backward import NSTAT, BackwardPrepare, ProjectBackward, VertexBackward, backward_stage
 from ..kernels.reduce import SegmentSum
 from ..kernels.sort import RadixSort
 from ..types import Grads, TriangleModel, check_cotangents
@@ -58,7 +58,7 @@ class BackwardPass:
         self.renderer = renderer
         self.ctx = c
         self.prepare = BackwardPrepare(c)
-        self.raster = RasterizeBackward(c)
+        self.raster = backward_stage(c)     # in the context's kernel layout
         self.pair_sort = RadixSort(c, renderer.scratch, "pair_sort")
         self.pair_sum = SegmentSum(c, renderer.scratch, "pair_sum")
         self.corner_sum = SegmentSum(c, renderer.scratch, "corner_sum")

@@ -14,7 +14,7 @@ from ..kernels.bin import BinCount, BinEmit, BinItems, BinRows, TileRanges
 from ..kernels.reduce import MaxReduce
 from ..kernels.sort import PrefixSum, RadixSort
 from ..kernels.project import ProjectTriangles, ShToColor, frame_params
-from ..kernels.blend import GatherTris, RasterizeForward, RasterizeIds
+from ..kernels.blend import GatherTris, forward_stage
 from ..gpu.chunks import binding_bytes, pair_windows
 from ..gpu.stage import Scratch
 from ..gpu.wgsl import constant
@@ -162,7 +162,7 @@ class Renderer:
         self.depth_sort = RadixSort(c, self.scratch, "depth_sort")
         self.tile_sort = RadixSort(c, self.scratch, "tile_sort")
         self.tile_ranges = TileRanges(c)
-        self.blend = RasterizeForward(c)
+        self.blend = forward_stage(c)     # in the context's kernel layout
         self.gather = GatherTris(c)
         self._ids = None           # RasterizeIds, compiled on first use (forward(triangle_ids=True))
         self.tri2d_dtype = self.project.src.structs["Tri2D"]   # projected triangle records
@@ -388,7 +388,7 @@ class Renderer:
         h, w = camera.height, camera.width
         tx, ty, _ = self.tiles(camera)
         if self._ids is None:
-            self._ids = RasterizeIds(c)
+            self._ids = forward_stage(c, triangle_ids=True)
         b["id_t"] = c.buffer(4 * h * w, "id_t")
         b["triangle_ids"] = c.buffer(8 * h * w, "triangle_ids")
         for tris, window in self._tri_windows(rec, b, m, num_pairs, max_tile_pairs):
