@@ -317,9 +317,10 @@ class Renderer:
                        b["counts"], b["tile_counts"], num_rows, prof, num_triangles=m)
         pairs_total = self.scan.record(rec.encoder, b["counts"], num_rows, profiler=prof, label="bin_count")
         self.max_reduce(rec.encoder, b["tile_counts"], b["max_tile_pairs"], ntiles, prof, "bin_count")
+        # both counts in one readback (one wait for the device, not two): the total beside the maximum
+        rec.encoder.copy_buffer_to_buffer(pairs_total, 0, b["max_tile_pairs"], 4, 4)
         flush("bin_count", force=True)
-        num_pairs = _read_u32(c, pairs_total)
-        max_tile_pairs = _read_u32(c, b["max_tile_pairs"])
+        max_tile_pairs, num_pairs = (int(v) for v in c.read(b["max_tile_pairs"], np.uint32, 2))
         c.check_size("tile-triangle pairs (image size x triangles)", 4 * num_pairs)
         return b, num_pairs, max_tile_pairs
 
