@@ -4,15 +4,20 @@
 // whose header gives the derivative; the host picks one of the two (kernels/backward.py:
 // backward_stage).
 //
-// Deterministic and atomic-free for floats. Pairs are staged RB at a time (a round). Per pair:
-//   phase 1: every pixel replays the pair (if it reaches it: index < last) and writes its 13
-//     quantities (colour weight x v per channel, dL/d o, their d.y moments, dL/d ratio of the
-//     argmin edge and its d.y moment; zeros where it did not take the pair) to `red`;
-//   phase 2a: invocation (q, column) sums quantity q down its column's 16 rows, in order;
-//   phase 2b: invocation i computes statistic i of grad_stats.wgsl over the 16 columns, in
+// Deterministic and atomic-free for floats. Pairs are staged RB at a time (a round) and
+// reduced PB at a time (a step):
+//   phase 1: every pixel replays the step's pairs in order (those it reaches: index < last)
+//     and writes, per pair, 5 numbers and an edge index to `red`: the colour weight x v per
+//     channel, dL/d o, dL/d ratio and which edge is the argmin (zeros where it did not take
+//     the pair);
+//   phase 2a: invocation (pair, quantity, column) sums one of the 13 quantities of
+//     grad_stats down its column's 16 rows, in order: the plain sums, their d.y moments
+//     (d.y = row centre - s.y, multiplied in as the CPU layout does per pixel) and, per edge,
+//     dL/d ratio where that edge is the argmin;
+//   phase 2b: invocation (pair, statistic) sums the column sums across the 16 columns, in
 //     order (a column's d.x is the same for its 16 pixels: the d.x moments are d.x times the
 //     column sums) and writes it to `partials`.
-// Both phases are skipped where no pixel took the pair; two barriers a pair.
+// Phase 2 is skipped for a pair no pixel took; two barriers a step of PB pairs.
 #import frame
 #import triangle
 #import grad_stats
@@ -39,18 +44,21 @@ struct PassParams {
 // [0] pixel-pair evaluations, [1] those that reached the power, [2] contributions
 @group(0) @binding(8) var<storage, read_write> work: array<atomic<u32>>; // [3]
 
-const RB: u32 = 16u;         // pairs per round
+const RB: u32 = 16u;         // pairs per round (staged together)
+const PB: u32 = 2u;          // pairs per step (reduced together)
 const THREADS: u32 = 256u;   // one invocation per pixel of the tile
-const NQ: u32 = 13u;         // per-pixel quantities a pair
-// Rounds per dispatch: at most 1 + RB (1 + 2 x TILE) = 529 loop iterations a round and
-// invocation, so at most 59,248 a dispatch, under lavapipe's 65535 an invocation.
-const ROUNDS_PER_PASS: u32 = 112u;
+const NW: u32 = 6u;          // words a pixel writes per pair: wr, wg, wb, vo, vrat, edge
+const NQ: u32 = 13u;         // column sums per pair (grad_stats' statistics without d.x)
+// Rounds per dispatch: a round is at most 1 + RB / PB steps of 1 + PB + 2 (1 + TILE) + TILE =
+// 53 loop iterations an invocation (the step, phase 1, two tasks of phase 2a, phase 2b), so
+// 425, and 144 rounds are 61,200, under lavapipe's 65535 an invocation.
+const ROUNDS_PER_PASS: u32 = 144u;
 const REC: u32 = 5u;         // vec4s per staged triangle, as rasterize_backward.wgsl:
 //   [0] s.x, s.y, g0   [1] g1, g2   [2] tau, opacity, c.x, c.y   [3] c.z, cx   [4] cy, s.y
 
 var<workgroup> staged: array<vec4<f32>, 80>;        // [RB, REC]
-var<workgroup> red: array<f32, 3328>;               // [NQ, 16 rows, 16 columns]
-var<workgroup> colsum: array<f32, 208>;             // [NQ, 16 columns]
+var<workgroup> red: array<f32, 3072>;               // [PB, NW, 16 rows, 16 columns]
+var<workgroup> colsum: array<f32, 416>;             // [PB, NQ, 16 columns]
 var<workgroup> taken: array<atomic<u32>, 16>;       // [RB] some pixel took the pair
 var<workgroup> max_last: atomic<u32>;
 var<workgroup> rounds_shared: u32;
@@ -133,104 +141,121 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
             stage(li, first + li, range.y);
         }
         workgroupBarrier();
-        for (var j = 0u; j < count; j++) {
-            // ---- phase 1: this pixel's quantities for pair j
-            var q = array<f32, 13>(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-            let w0 = staged[REC * j];
-            let w1 = staged[REC * j + 1u];
-            let w2 = staged[REC * j + 2u];
-            let dx = x - w0.x;
-            let d = y - w0.y;
-            let e0 = (1.0 + w0.z * dx) + w0.w * d;
-            let e1 = (1.0 + w1.x * dx) + w1.y * d;
-            let e2 = (1.0 + w1.z * dx) + w1.w * d;
-            let ratio = min(min(e0, e1), e2);
-            // same decisions as rasterize_forward (ratio < tau: alpha < 1/255)
-            if (b * RB + j < last && ratio > 0.0 && ratio >= w2.x) {
-                powered += 1u;
-                let opacity = w2.y;
-                let pr = max(ratio, 1e-30);
-                let win = exp2(sigma * log2(pr));
-                let oi = opacity * win;
-                let alpha = min(ALPHA_MAX, oi);
-                if (alpha >= ALPHA_MIN) {
-                    added += 1u;
-                    let w3 = staged[REC * j + 3u];
-                    let w4 = staged[REC * j + 4u];
-                    let dy = y - w4.w;     // w4.w carries s.y
-                    let cr = w2.z + w3.y * dx + w4.x * dy;
-                    let cg = w2.w + w3.z * dx + w4.y * dy;
-                    let cb = w3.x + w3.w * dx + w4.z * dy;
-                    let cv = cr * v.x + cg * v.y + cb * v.z;
-                    let w = alpha * T;
-                    acc = acc + cv * w;
-                    let v_alpha = T * cv - (Z - acc) / (1.0 - alpha);
-                    let unclamped = oi < ALPHA_MAX;
-                    let vo = select(0.0, v_alpha * win, unclamped);
-                    let vrat = select(0.0, v_alpha * opacity * sigma * win / pr, unclamped);
-                    let k0 = e0 <= e1 && e0 <= e2;
-                    let k1 = !k0 && e1 <= e2;
-                    let kk = select(select(2u, 1u, k1), 0u, k0);
-                    q[0] = w * v.x;
-                    q[1] = w * v.y;
-                    q[2] = w * v.z;
-                    q[3] = vo;
-                    q[4] = q[0] * dy;
-                    q[5] = q[1] * dy;
-                    q[6] = q[2] * dy;
-                    q[7u + kk] = vrat;
-                    q[10u + kk] = vrat * dy;
-                    T = T * (1.0 - alpha);
-                    atomicStore(&taken[j], 1u);
-                }
-            }
-            // written out, not looped: no loop trips spent here (lavapipe's budget, above)
-            red[li] = q[0];
-            red[THREADS + li] = q[1];
-            red[2u * THREADS + li] = q[2];
-            red[3u * THREADS + li] = q[3];
-            red[4u * THREADS + li] = q[4];
-            red[5u * THREADS + li] = q[5];
-            red[6u * THREADS + li] = q[6];
-            red[7u * THREADS + li] = q[7];
-            red[8u * THREADS + li] = q[8];
-            red[9u * THREADS + li] = q[9];
-            red[10u * THREADS + li] = q[10];
-            red[11u * THREADS + li] = q[11];
-            red[12u * THREADS + li] = q[12];
-            workgroupBarrier();
-            let any_taken = atomicLoad(&taken[j]) != 0u;
-            // ---- phase 2a: quantity k's sum down column c, rows in order
-            if (any_taken && li < NQ * TILE) {
-                let k = li / TILE;
-                let c = li % TILE;
-                var s = 0.0;
-                for (var r = 0u; r < TILE; r++) {
-                    s += red[k * THREADS + r * TILE + c];
-                }
-                colsum[li] = s;
-            }
-            workgroupBarrier();
-            // ---- phase 2b: statistic li over the columns, in order (grad_stats layout:
-            // [3 c + m] colour c, [9 + 3 k + m] edge k, moment m = 1, d.x, d.y; [18] o)
-            if (any_taken && li < NSTAT) {
-                var s = 0.0;
-                if (li < 18u) {
-                    let group = li / 3u;         // 0..2 colours, 3..5 edges
-                    let m = li % 3u;
-                    let base = select(7u + group - 3u, group, group < 3u);   // the plain quantity
-                    let k = select(base, base + 3u + select(0u, 1u, group < 3u), m == 2u);
-                    let sx = staged[REC * j].x;
-                    for (var c = 0u; c < TILE; c++) {
-                        let f = select(1.0, (x0 + f32(c)) - sx, m == 1u);
-                        s += colsum[k * TILE + c] * f;
-                    }
-                } else if (li == 18u) {
-                    for (var c = 0u; c < TILE; c++) {
-                        s += colsum[3u * TILE + c];
+        for (var j0 = 0u; j0 < count; j0 += PB) {
+            // ---- phase 1: this pixel's numbers for the step's pairs, front to back
+            for (var p = 0u; p < PB; p++) {
+                let j = j0 + p;
+                var q = array<f32, 6>(0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+                if (j < count) {
+                    let w0 = staged[REC * j];
+                    let w1 = staged[REC * j + 1u];
+                    let w2 = staged[REC * j + 2u];
+                    let dx = x - w0.x;
+                    let d = y - w0.y;
+                    let e0 = (1.0 + w0.z * dx) + w0.w * d;
+                    let e1 = (1.0 + w1.x * dx) + w1.y * d;
+                    let e2 = (1.0 + w1.z * dx) + w1.w * d;
+                    let ratio = min(min(e0, e1), e2);
+                    // same decisions as rasterize_forward (ratio < tau: alpha < 1/255)
+                    if (b * RB + j < last && ratio > 0.0 && ratio >= w2.x) {
+                        powered += 1u;
+                        let opacity = w2.y;
+                        let pr = max(ratio, 1e-30);
+                        let win = exp2(sigma * log2(pr));
+                        let oi = opacity * win;
+                        let alpha = min(ALPHA_MAX, oi);
+                        if (alpha >= ALPHA_MIN) {
+                            added += 1u;
+                            let w3 = staged[REC * j + 3u];
+                            let w4 = staged[REC * j + 4u];
+                            let dy = y - w4.w;     // w4.w carries s.y
+                            let cr = w2.z + w3.y * dx + w4.x * dy;
+                            let cg = w2.w + w3.z * dx + w4.y * dy;
+                            let cb = w3.x + w3.w * dx + w4.z * dy;
+                            let cv = cr * v.x + cg * v.y + cb * v.z;
+                            let w = alpha * T;
+                            acc = acc + cv * w;
+                            let v_alpha = T * cv - (Z - acc) / (1.0 - alpha);
+                            let unclamped = oi < ALPHA_MAX;
+                            let k0 = e0 <= e1 && e0 <= e2;
+                            let k1 = !k0 && e1 <= e2;
+                            q[0] = w * v.x;
+                            q[1] = w * v.y;
+                            q[2] = w * v.z;
+                            q[3] = select(0.0, v_alpha * win, unclamped);
+                            q[4] = select(0.0, v_alpha * opacity * sigma * win / pr, unclamped);
+                            q[5] = select(select(2.0, 1.0, k1), 0.0, k0);
+                            T = T * (1.0 - alpha);
+                            atomicStore(&taken[j], 1u);
+                        }
                     }
                 }
-                partials[(first + j - pp.pair_lo) * NSTAT + li] = s;
+                // written out, not looped: no loop trips spent here (lavapipe's budget, above)
+                let o = p * NW * THREADS + li;
+                red[o] = q[0];
+                red[o + THREADS] = q[1];
+                red[o + 2u * THREADS] = q[2];
+                red[o + 3u * THREADS] = q[3];
+                red[o + 4u * THREADS] = q[4];
+                red[o + 5u * THREADS] = q[5];
+            }
+            workgroupBarrier();
+            // ---- phase 2a: task (pair p, quantity k, column c) sums down the column's rows in
+            // order. k: 0-2 colour weights, 3 dL/d o, 4-6 their d.y moments, 7-9 dL/d ratio of
+            // edge k - 7, 10-12 its d.y moment (grad_stats' order, less the d.x moments)
+            for (var task = li; task < PB * NQ * TILE; task += THREADS) {
+                let p = task / (NQ * TILE);
+                let k = (task / TILE) % NQ;
+                let c = task % TILE;
+                let j = j0 + p;
+                if (j < count && atomicLoad(&taken[j]) != 0u) {
+                    let sy = staged[REC * j + 4u].w;
+                    let y0 = f32(wid.y * TILE) + 0.5;
+                    let src = select(select(4u, k - 4u, k < 7u), k, k < 4u);   // the word summed
+                    let edge = f32(select(k - 10u, k - 7u, k < 10u));
+                    let moment = (k >= 4u && k < 7u) || k >= 10u;
+                    let base = p * NW * THREADS + src * THREADS + c;
+                    let ebase = p * NW * THREADS + 5u * THREADS + c;
+                    var s = 0.0;
+                    for (var r = 0u; r < TILE; r++) {
+                        var val = red[base + r * TILE];
+                        if (k >= 7u && red[ebase + r * TILE] != edge) {
+                            val = 0.0;
+                        }
+                        if (moment) {
+                            val = val * ((y0 + f32(r)) - sy);
+                        }
+                        s += val;
+                    }
+                    colsum[(p * NQ + k) * TILE + c] = s;
+                }
+            }
+            workgroupBarrier();
+            // ---- phase 2b: task (pair p, statistic i) over the columns, in order (grad_stats
+            // layout: [3 c + m] colour c, [9 + 3 k + m] edge k, moment m = 1, d.x, d.y; [18] o)
+            if (li < PB * NSTAT) {
+                let p = li / NSTAT;
+                let i = li % NSTAT;
+                let j = j0 + p;
+                if (j < count && atomicLoad(&taken[j]) != 0u) {
+                    var s = 0.0;
+                    if (i < 18u) {
+                        let group = i / 3u;         // 0..2 colours, 3..5 edges
+                        let m = i % 3u;
+                        let plain = select(7u + group - 3u, group, group < 3u);
+                        let k = select(plain, plain + 3u + select(0u, 1u, group < 3u), m == 2u);
+                        let sx = staged[REC * j].x;
+                        for (var c = 0u; c < TILE; c++) {
+                            let f = select(1.0, (x0 + f32(c)) - sx, m == 1u);
+                            s += colsum[(p * NQ + k) * TILE + c] * f;
+                        }
+                    } else if (i == 18u) {
+                        for (var c = 0u; c < TILE; c++) {
+                            s += colsum[(p * NQ + 3u) * TILE + c];
+                        }
+                    }
+                    partials[(first + j - pp.pair_lo) * NSTAT + i] = s;
+                }
             }
         }
         workgroupBarrier();
