@@ -35,7 +35,7 @@ def add_parser(sub):
 
 def run(args):
     from ..gpu.context import (LAVAPIPE_HINT, WEBGPU_DEFAULT_LIMITS, adapter_description, adapter_size_limits,
-                               list_adapters, select_adapter)
+                               choose_layout, list_adapters, select_adapter)
     adapters = list_adapters()
     if not adapters:
         raise UserError(LAVAPIPE_HINT)
@@ -49,7 +49,8 @@ def run(args):
                 else adapter_size_limits(dict(a.limits)))
         print(f"{mark} {adapter_description(a)}  [{', '.join(opt) or 'no optional features'}]  "
               f"{size['max-storage-buffer-binding-size'] / 2**20:,.0f} MiB per binding, "
-              f"{size['max-buffer-size'] / 2**20:,.0f} MiB per buffer")
+              f"{size['max-buffer-size'] / 2**20:,.0f} MiB per buffer, {choose_layout(dict(a.info))} kernel layout")
     print("(* = used by default; set TSPLUS_ADAPTER or --adapter to choose; "
-          "TSPLUS_WEBGPU_LIMITS=1 keeps WebGPU's 128 MiB per binding and 256 MiB per buffer)")
+          "TSPLUS_WEBGPU_LIMITS=1 keeps WebGPU's 128 MiB per binding and 256 MiB per buffer; "
+          "TSPLUS_LAYOUT=cpu|gpu sets the kernel layout)")
     return 0
