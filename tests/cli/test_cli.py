@@ -67,4 +67,7 @@ def test_adapters_lists_lavapipe_or_gpu(capsys, monkeypatch):
     monkeypatch.setenv("TSPLUS_WEBGPU_LIMITS", "1")      # what a device gets then: WebGPU's sizes
     assert main(["adapters"]) == 0
     first = capsys.readouterr().out.splitlines()[0]
-    assert first.endswith("128 MiB per binding, 256 MiB per buffer")
+    assert re.search(r"128 MiB per binding, 256 MiB per buffer, (cpu|gpu) kernel layout$", first)
+    monkeypatch.setenv("TSPLUS_LAYOUT", "gpu")          # the override, for every adapter
+    assert main(["adapters"]) == 0
+    assert capsys.readouterr().out.splitlines()[0].endswith(", gpu kernel layout")
