@@ -115,7 +115,12 @@ def test_largest_model_is_the_most_that_fits():
     # vertex sums (32 bytes a vertex, bound whole) come first: 2**22 vertices, under the 8 GiB
     # wall (before 2026-11-27 the SH came first: 2**27 // 192 = 699,050 vertices)
     assert n > 2**22 and largest_model(8 * gib, **args, max_binding=2**27) == 2**27 // 32
-    assert largest_model(2 * gib, **args, max_binding=2**27) == largest_model(2 * gib, **args) < 2**22
+    # below that wall, a model whose projected triangles outgrow one binding also pays the two
+    # gathered windows of records (2 x 518,400 pairs x 96 bytes here)
+    small = largest_model(2 * gib, **args, max_binding=2**27)
+    assert small < largest_model(2 * gib, **args) < 2**22 and 1.5 * small * 96 > 2**27
+    assert training_bytes(small, round(1.5 * small), 3, 960, 540, pairs, pair_window=2**27 // 80,
+                          max_binding=2**27)["total"] <= 2 * gib
     assert largest_model(8 * gib, **args, max_binding=2**27, max_buffer=2**27) == 2**27 // 192   # SH: one buffer
     assert largest_model(1000, **args) == 0
 
@@ -143,3 +148,18 @@ def test_a_model_over_the_available_memory_is_refused_before_its_buffers(rendere
     assert renderer.ctx.live_bytes() - before < 100_000          # the model's buffers were never made
     monkeypatch.setattr(memory, "available_bytes", lambda ctx: None)      # unknown (a GPU): no check
     Trainer(scene, cfg, renderer=renderer)
+
+
+def test_gathered_window_records_are_counted_past_one_binding():
+    """Where a model's projected triangles (96 bytes each) outgrow one storage binding, the
+    forward and the backward each gather a window's records into a buffer of their own."""
+    m, pairs = 3000, 5000
+    plain = training_buffers(1000, m, 3, 64, 48, pairs)
+    fits = training_buffers(1000, m, 3, 64, 48, pairs, max_binding=96 * m)          # exactly one binding
+    assert fits == plain
+    past = dict((name, b) for _, name, b in training_buffers(1000, m, 3, 64, 48, pairs, max_binding=96 * m - 16))
+    assert past["forward_tris_window"] == past["backward_tris_window"] == 96 * (m - 1)   # one binding's records
+    few = dict((name, b) for _, name, b in training_buffers(1000, m, 3, 64, 48, 100, max_binding=96 * 1000))
+    assert few["forward_tris_window"] == 96 * 100                                   # no more than the pairs
+    assert (training_bytes(1000, m, 3, 64, 48, pairs, max_binding=96 * 1000)["pair"]
+            - training_bytes(1000, m, 3, 64, 48, pairs)["pair"]) == 2 * 96 * 1000

@@ -126,7 +126,8 @@ def scale_row(renderer, num_vertices, width, height, sh_degree=3, sigma=0.5, rep
     if bwd:
         row["pair_windows"] = len(pair_windows(res.num_pairs, res.max_tile_pairs, cap))
     row["training_bytes_estimate"] = training_bytes(model.num_vertices, m, sh_degree, width, height,
-                                                    int(res.num_pairs), pair_window=cap)["total"]
+                                                    int(res.num_pairs), pair_window=cap,
+                                                    max_binding=int(ctx.limits["max-storage-buffer-binding-size"]))["total"]
     if reference_render is not None:
         x0, y0 = (width - CROP) // 2, (height - CROP) // 2
         ref, drawn = crop_twin(reference_render, model, cam, sigma, x0, y0)

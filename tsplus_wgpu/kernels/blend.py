@@ -14,10 +14,9 @@ BLEND_PASS_PAIRS = constant("PASS_PAIRS", "rasterize_forward")
 
 
 def kernel_layout(ctx=None):
-    """The blend kernels' layout as the benchmarks name it, read from the WGSL of the layout
-    ``ctx`` uses (:attr:`~tsplus_wgpu.gpu.GpuContext.layout`; None: the one of the default
-    adapter's class is not known here, so the CPU layout): each kernel's invocations a tile and
-    pixels each."""
+    """The blend kernels' layout as the benchmarks name it: its name (``ctx.layout``,
+    :attr:`~tsplus_wgpu.gpu.GpuContext.layout`; the CPU layout when ``ctx`` is None) and, read
+    from the WGSL, each kernel's invocations a tile and pixels each."""
     name = "cpu" if ctx is None else ctx.layout
     suffix = "" if name == "cpu" else "_gpu"
     tile = int(constant("TILE", "frame"))

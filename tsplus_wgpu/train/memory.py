@@ -22,7 +22,8 @@ backward pass, when the forward's buffers are still held) with the size the code
   backward's per-pair statistics (``NSTAT`` floats) and their segmented sum (these last, with
   the pair sort, for at most one window of pairs at a time: ``pair_window``); and per
   (triangle, tile row) item, which the binning sizes by its own count (``rows``; at most one
-  item per pair, so ``pairs`` bounds it).
+  item per pair, so ``pairs`` bounds it); with ``max_binding``, where the projected triangles
+  outgrow one binding, the forward's and the backward's gathered window of records.
 * **targets**: the training images, uploaded once per view and kept (``views`` of them).
 
 Not counted: uniform buffers (a few hundred bytes, one per dispatch), the normal loss (a second
@@ -98,7 +99,7 @@ def _scan_scratch(lengths, c):
 
 
 def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pairs, supersample=1, rows=None,
-                     views=1, pair_window=None):
+                     views=1, pair_window=None, max_binding=None):
     """Every buffer alive at the peak of one training step: ``[(family, name, bytes)]``.
 
     Args:
@@ -113,6 +114,9 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
         pair_window: the most pairs the backward takes at once (its windows,
             :func:`~tsplus_wgpu.render.backward.pair_windows`: one storage binding of their
             statistics); None: all of them at once.
+        max_binding: the device's storage-binding size (bytes); where the projected triangles
+            outgrow it, the forward and the backward each read a window's records gathered into
+            a buffer of their own (at most one binding). None: not counted.
     """
     c = _consts()
     n, m, k = int(num_vertices), int(num_triangles), (int(sh_degree) + 1) ** 2
@@ -154,6 +158,10 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
         ("counts", 4 * R), ("item_rank", 4 * R), ("pair_tiles", 4 * P), ("pair_tris", 4 * P),   # forward
         ("pair_keys", 4 * Pw), ("pair_ids", 4 * Pw), ("partials", 4 * c["nstat"] * Pw))]      # backward
     out.append((Q, "pair_ids_fresh", _buf(4 * Pw)))      # 0, 1, ...: each window's ids start from a copy
+    if max_binding is not None and c["tri2d"] * m > int(max_binding):
+        # the projected triangles past one binding: a window's records, gathered in pair order
+        window = min(P, int(max_binding) // c["tri2d"]) * c["tri2d"]
+        out += [(Q, "forward_tris_window", _buf(window)), (Q, "backward_tris_window", _buf(window))]
     tile, scan_tile = _sort_scratch("tile_sort", P, max(1, (tiles - 1).bit_length()), c)
     pair, scan_pair = _sort_scratch("pair_sort", Pw, max(1, (m - 1).bit_length()), c)
     out += [(Q, name, b) for name, b in tile + pair + _segment_scratch("pair_sum", Pw, c["nstat"] // 4, c)]
@@ -165,12 +173,12 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
 
 
 def training_bytes(num_vertices, num_triangles, sh_degree, width, height, pairs, supersample=1, rows=None,
-                   views=1, pair_window=None):
+                   views=1, pair_window=None, max_binding=None):
     """Device bytes of one training step at its peak, by buffer family (:data:`FAMILIES`) and
     ``total``. Arguments: :func:`training_buffers`."""
     out = dict.fromkeys(FAMILIES, 0)
     for family, _, nbytes in training_buffers(num_vertices, num_triangles, sh_degree, width, height, pairs,
-                                              supersample, rows, views, pair_window):
+                                              supersample, rows, views, pair_window, max_binding):
         out[family] += nbytes
     out["total"] = sum(out[f] for f in FAMILIES)
     return out
@@ -194,7 +202,7 @@ def largest_model(memory_bytes, sh_degree, width, height, pairs_per_pixel, trian
 
     def fits(n):
         bufs = training_buffers(n, int(round(n * float(triangles_per_vertex))), sh_degree, width, height, pairs,
-                                supersample, views=views, pair_window=window)
+                                supersample, views=views, pair_window=window, max_binding=max_binding)
         if max_binding is not None and any(b > (max_buffer if name in CHUNKED else max_binding)
                                            for _, name, b in bufs):
             return False
@@ -235,7 +243,8 @@ def check_fits(ctx, num_vertices, num_triangles, sh_degree, cameras):
     if avail is None or not cameras:
         return
     w, h = max(c.width for c in cameras), max(c.height for c in cameras)
-    need = training_bytes(num_vertices, num_triangles, sh_degree, w, h, w * h, views=len(cameras))["total"]
+    need = training_bytes(num_vertices, num_triangles, sh_degree, w, h, w * h, views=len(cameras),
+                          max_binding=int(ctx.limits["max-storage-buffer-binding-size"]))["total"]
     if need > avail:
         raise ValueError(f"device memory: training {num_vertices:,} vertices and {num_triangles:,} triangles on "
                          f"{len(cameras)} views of {w}x{h} needs about {need / 2**30:.1f} GiB, but {ctx.name} has "
