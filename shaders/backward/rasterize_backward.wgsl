@@ -28,17 +28,7 @@
 #import frame
 #import triangle
 #import grad_stats
-
-struct PassParams {
-    round_begin: u32,   // rounds [round_begin, round_end) of RB pairs in this dispatch: lavapipe
-    round_end: u32,     // stops any invocation's loops after 65535 iterations in total
-    pair_lo: u32,       // the pair window: only tiles whose first pair is in [pair_lo, pair_hi)
-    pair_hi: u32,       // replay, and pair p's statistics go to partials[p - pair_lo]
-    gathered: u32,      // 1: tris holds the window's records in pair order (gather_tris), pair p's
-    _pad0: u32,         // at p - pair_lo (the projected triangles outgrow one binding)
-    _pad1: u32,
-    _pad2: u32,
-}
+#import replay_pass
 
 @group(0) @binding(0) var<uniform> params: FrameParams;
 @group(0) @binding(1) var<uniform> pp: PassParams;

@@ -21,17 +21,7 @@
 #import frame
 #import triangle
 #import grad_stats
-
-struct PassParams {
-    round_begin: u32,   // rounds [round_begin, round_end) of RB pairs in this dispatch
-    round_end: u32,
-    pair_lo: u32,       // the pair window (rasterize_backward.wgsl)
-    pair_hi: u32,
-    gathered: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
+#import replay_pass
 
 @group(0) @binding(0) var<uniform> params: FrameParams;
 @group(0) @binding(1) var<uniform> pp: PassParams;

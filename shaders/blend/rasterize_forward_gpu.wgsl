@@ -11,17 +11,7 @@
 #import frame
 #import triangle
 #import window4
-
-struct BlendPass {
-    begin: u32,   // window of pairs [begin, end) within every tile's range
-    end: u32,
-    first: u32,   // 1: no state to resume
-    last: u32,    // 1: write the final outputs
-    pair_lo: u32, // gathered windows of whole tiles (rasterize_forward.wgsl)
-    pair_hi: u32,
-    gathered: u32,
-    _pad0: u32,
-}
+#import blend_pass
 
 @group(0) @binding(0) var<uniform> params: FrameParams;
 @group(0) @binding(1) var<storage, read> ranges: array<vec2<u32>>;   // [tiles]
