@@ -4,7 +4,8 @@
 A frame: :meth:`MeshRenderer.draw` of the vertex / index buffers into an ``rgba32float``
 target (rgb = colour, a = camera z, 0 = nothing; the same pipeline :meth:`MeshRenderer.render`
 uses), or a line list pulled from the same storage buffers (wireframe,
-``shaders/mesh/viewer_wire.wgsl``), or :meth:`Renderer.forward` (the soft splatting render)
+``shaders/mesh/viewer_wire.wgsl``, coloured per vertex from the camera by the forward's own
+``sh_to_color``), or :meth:`Renderer.forward` (the soft splatting render)
 written into that target; then a present pass (``shaders/mesh/viewer_present.wgsl``) puts it
 on the canvas's texture (background where nothing was drawn) with the HUD's text mask over the
 top-left corner. Resources are bound by their WGSL names and the uniforms packed with the
@@ -113,6 +114,7 @@ class FrameRenderer:
         self._present = {}
         self._targets = None
         self._hud = None      # (texture, w, h, key)
+        self._wire_colors = None   # f32 [N, 4]: the wireframe's vertex colours, grown as N grows
         self._hud_size = (0, 0)
 
     def _present_pipeline(self, fmt):
@@ -163,14 +165,16 @@ class FrameRenderer:
         b = source.buffers
         params = np.zeros((), self._wire_src.structs["WireParams"])
         params["clip_from_world"] = (clip_from_camera(camera, near) @ camera.world_to_camera).T.ravel()
-        params["sh_size"] = source.sh_size
         ubuf = self.ctx.device.create_buffer_with_data(data=params.tobytes(), usage=wgpu.BufferUsage.UNIFORM)
-        # the SH may be larger than one binding (bound in ranges elsewhere: gpu/chunks.py); the
-        # wire reads each vertex's DC only, so it binds what one binding holds and draws the
-        # vertices past it (over ~700k at SH degree 3 on 128 MiB) in whatever colour that gives
-        lim = min(int(self.ctx.limits["max-storage-buffer-binding-size"]), int(b["sh"].size))
+        # each vertex's colour from this camera, written by the forward's own kernel in ranges of
+        # vertices, so SH larger than one storage binding colour every vertex
+        n = max(int(source.num_vertices), 1)
+        if self._wire_colors is None or self._wire_colors.size < 16 * n:
+            self._wire_colors = self.ctx.device.create_buffer(size=16 * n, usage=wgpu.BufferUsage.STORAGE)
+        self.renderer.record_vertex_colors(encoder, camera, b["positions"], b["sh"], self._wire_colors,
+                                           source.num_vertices, source.sh_size)
         bind = self._bind(self._wire, self._wire_src, params={"buffer": ubuf}, positions={"buffer": b["positions"]},
-                          triangles={"buffer": b["triangles"]}, sh={"buffer": b["sh"], "size": lim})
+                          triangles={"buffer": b["triangles"]}, colors={"buffer": self._wire_colors})
         rp = encoder.begin_render_pass(color_attachments=[{
             "view": color_view, "clear_value": (0.0, 0.0, 0.0, 0.0), "load_op": wgpu.LoadOp.clear,
             "store_op": wgpu.StoreOp.store}])

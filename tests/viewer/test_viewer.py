@@ -347,3 +347,34 @@ def test_hud_font():
     m = render_text(["ITER 12  PSNR 23.5", "FPS 60"], scale=2)
     assert m.shape[::-1] == text_size(["ITER 12  PSNR 23.5", "FPS 60"], 2) and m.dtype == np.uint8
     assert set(np.unique(m)) == {0, 255}
+
+
+def test_wireframe_colours_every_vertex_of_sh_past_one_binding(renderer):
+    """The wireframe's vertex colours come from the forward's sh_to_color, a range of vertices a
+    binding: a model whose SH (SH degree 3) outgrow the device's storage binding still colours its
+    last vertices. Two triangles, one over the first vertices and one over the last; every other
+    vertex has random SH, so a colour read from the wrong row shows. (Until 2026-11-27 the wire
+    bound the first binding's worth of SH: the last triangle came out in another colour.)"""
+    lim = int(renderer.ctx.limits["max-storage-buffer-binding-size"])
+    n = max(720_000, lim // 192 + 1000)
+    if 192 * n > int(renderer.ctx.limits["max-buffer-size"]) or n > 3_000_000:
+        pytest.skip("this device's buffers cannot hold SH past one binding")
+    rng = np.random.default_rng(4)
+    pos = rng.uniform(-1.0, 1.0, (n, 3)).astype(np.float32)
+    sh = rng.normal(scale=0.5, size=(n, 16, 3)).astype(np.float32)
+    first, last = np.arange(3), np.arange(n - 3, n)
+    pos[first] = [[-0.9, -0.4, 0.0], [-0.2, -0.4, 0.0], [-0.5, 0.4, 0.0]]
+    pos[last] = [[0.2, -0.4, 0.0], [0.9, -0.4, 0.0], [0.5, 0.4, 0.0]]
+    want = {"first": np.array([0.9, 0.2, 0.1]), "last": np.array([0.1, 0.4, 0.8])}
+    for rows, c in ((first, want["first"]), (last, want["last"])):
+        sh[rows] = 0.0
+        sh[rows, 0] = (c - 0.5) / 0.28209479177387814    # DC only: the same colour from every side
+    model = TriangleModel(pos, np.stack([first, last]), sh, np.ones(n))
+    viewer = v.Viewer(v.ModelSource(renderer, model), [_cam()], offscreen=True, hud=False)
+    viewer._apply(["toggle_wireframe"])
+    img = viewer.frame().astype(np.float64) / 255.0
+    drawn = img.reshape(-1, 3)[img.reshape(-1, 3).sum(1) > 0.05]
+    assert len(drawn) > 20
+    near = [np.abs(drawn - c).max(1) <= 2.5 / 255 for c in want.values()]
+    assert near[0].any() and near[1].any(), "both triangles drawn in their colours"
+    assert np.all(near[0] | near[1]), "every wire pixel in one of the two colours"

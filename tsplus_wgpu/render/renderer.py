@@ -188,6 +188,17 @@ class Renderer:
 
     _frame_params = frame_params
 
+    def record_vertex_colors(self, encoder, camera, positions, sh, colors, num_vertices, sh_size):
+        """Record into ``encoder`` each vertex's colour seen from ``camera``, ``(max(0, SH(dir) +
+        0.5), 1)`` (the forward's own ``sh_to_color``), from caller-owned buffers: ``positions`` f32
+        ``[N, 3]``, ``sh`` f32 ``[N, K, 3]`` (any size up to the device's buffer limit: bound a range
+        of vertices at a time), ``colors`` f32 ``[N, 4]`` (written). No upload, no readback: how the
+        live viewer colours its wireframe from the trainer's own buffers."""
+        n = int(num_vertices)
+        if n:
+            params = frame_params(self.sh_to_color, camera, 1.0, num_vertices=n, sh_k=int(sh_size))
+            self.sh_to_color(encoder, params, positions, sh, colors, n, None, int(sh_size))
+
     def upload_model(self, model: TriangleModel):
         """Device buffers of a model (float32 / uint32)."""
         c = self.ctx
