@@ -177,11 +177,42 @@ def test_triangulated_tracks_are_cached_and_old_caches_upgrade(small, tmp_path):
     same(again["tracks"], tab)
     cache = Path(again["cached"])
     np.savez(cache, xyz=pts, rgb=np.zeros_like(pts), err=0.5)    # as an older version wrote it
-    pts3, _, fresh = triangulate_known_poses(*args, progress=False)   # (pycolmap is not bit-reproducible)
+    pts3, _, fresh = triangulate_known_poses(*args, progress=False)
     assert "cached" not in fresh
     T.check(fresh["tracks"], len(pts3), len(small.cameras))
     with np.load(cache) as z:
         same((z["track_offsets"], z["track_frames"]), fresh["tracks"])
+
+
+def test_triangulation_repeats_to_the_last_bit(small, tmp_path):
+    """pycolmap on one thread (data/sfm.py: sfm_threads): two triangulations from scratch, in two
+    caches, give the same points, colours and tracks. With ``TSPLUS_SFM_THREADS=-1`` this failed
+    (2 cores)."""
+    from tsplus_wgpu.data.sfm import triangulate_known_poses
+    runs = [triangulate_known_poses(small.cameras, small.images, small.image_names, tmp_path / f"cache{i}",
+                                    progress=False) for i in range(2)]
+    assert "cached" not in runs[1][2]
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+    same(runs[0][2]["tracks"], runs[1][2]["tracks"])
+
+
+def test_sfm_threads_come_from_the_environment(monkeypatch, tmp_path):
+    from tsplus_wgpu.data import SceneError
+    from tsplus_wgpu.data.sfm import sfm_threads
+    monkeypatch.delenv("TSPLUS_SFM_THREADS", raising=False)
+    assert sfm_threads() == 1
+    monkeypatch.setenv("TSPLUS_SFM_THREADS", "-1")
+    assert sfm_threads() == -1
+    for bad in ("two", "0", "-3"):
+        monkeypatch.setenv("TSPLUS_SFM_THREADS", bad)
+        with pytest.raises(SceneError, match="TSPLUS_SFM_THREADS"):
+            sfm_threads()
+    # an error before any work, not a failed triangulation that falls back to frusta points
+    from tsplus_wgpu.data.sfm import triangulate_known_poses
+    small = load_procedural("tiny", seed=0)
+    with pytest.raises(SceneError, match="TSPLUS_SFM_THREADS"):
+        triangulate_known_poses(small.cameras, small.images, small.image_names, tmp_path, progress=False)
 
 
 def test_loader_maps_triangulated_tracks_to_scene_views(small, tmp_path):

@@ -305,7 +305,8 @@ def _full_size_specs(fmt, root, images, specs, image_dir):
 def _triangulation_key(specs, background) -> str:
     """Cache key of a triangulation: the image files (names, sizes, modification times), their
     cameras and lens distortion, the background, and the loader's version of the recipe."""
-    h = hashlib.sha1(b"tsplus-triangulation-v2|")
+    from .sfm import RECIPE  # noqa: PLC0415
+    h = hashlib.sha1(f"tsplus-triangulation-{RECIPE}|".encode())
     for f in specs:
         try:
             st = Path(f.path).stat()
@@ -332,7 +333,7 @@ def _initial_points(points, cameras, imgs, specs, background, train_idx, bounds,
     frusta. ``specs`` are the loaded frames at full size.
     Returns ``(points, colours, source, track table or None)`` (:mod:`.tracks`; view ids index
     ``cameras``; None for frusta points)."""
-    from .sfm import frusta_points  # noqa: PLC0415
+    from .frusta import frusta_points  # noqa: PLC0415
     if points != "frusta":
         got = _triangulated(specs, background, train_idx, cache_dir, progress, warnings)
         if got is not None:

@@ -5,8 +5,9 @@
   and reused while the photos have not changed.
 * :func:`triangulate_known_poses`: features and matches as above, then pycolmap's
   point triangulator with the given cameras held fixed.
-* :func:`frusta_points`: the fallback: random points inside the volume most cameras see,
-  coloured from the images.
+
+pycolmap runs on one thread (:func:`sfm_threads`), so both give the same result on every run.
+The fallback without SfM points, points in the cameras' frusta, is :mod:`.frusta`.
 """
 
 from __future__ import annotations
@@ -34,6 +35,32 @@ from .tracks import of_pycolmap_points as tracks_of_points
 #: 4,804 points this way against 1,452 with the defaults (SfM: 1,549), 3,485 of them two-view;
 #: measured in docs/measurements.md ("Real captures: denser initial points").
 TRIANGULATION_MIN_ANGLE = 1.0
+
+#: the recipe's version in every cache key: results of an older recipe are not reused
+#: (v3: pycolmap on one thread, deterministic)
+RECIPE = "v3"
+
+
+def sfm_threads() -> int:
+    """pycolmap's threads for feature extraction, matching, mapping and triangulation: 1 unless
+    ``TSPLUS_SFM_THREADS`` says otherwise (``-1``: all cores).
+
+    With more than one, pycolmap's results depend on the thread schedule: the image and camera
+    ids follow the order the extraction threads finish in, and the matches' geometric
+    verification and the mapper draw their random samples per thread. Lund's triangulation gave
+    4,811 to 4,830 points over four runs on 2 cores, its photos' SfM 2 or 21 registered photos
+    from one database; on one thread the same points to the last bit, 73 s against 41 s on 2
+    cores (once per scene: the result is cached). A faster, varying result:
+    ``TSPLUS_SFM_THREADS=-1``."""
+    raw = os.environ.get("TSPLUS_SFM_THREADS", "1").strip()
+    try:
+        n = int(raw)
+    except ValueError:
+        raise SceneError(f"TSPLUS_SFM_THREADS={raw!r}: expected a whole number of threads (1: deterministic, "
+                         "-1: all cores)") from None
+    if n == 0 or n < -1:
+        raise SceneError(f"TSPLUS_SFM_THREADS={raw!r}: expected 1 or more, or -1 for all cores")
+    return n
 
 
 def _pycolmap():
@@ -107,9 +134,9 @@ def cache_root(scene_dir=None, override=None) -> tuple[Path, str | None]:
         return tmp, f"{base} is not writable: cache kept in {tmp} (set XDG_CACHE_HOME or TSPLUS_CACHE)"
 
 
-def _fingerprint(paths) -> str:
-    """Content key of image files: names, sizes and modification times."""
-    h = hashlib.sha1()
+def _fingerprint(paths, recipe=RECIPE) -> str:
+    """Content key of image files: names, sizes and modification times, and the recipe."""
+    h = hashlib.sha1(f"{recipe}|".encode())
     for p in paths:
         st = Path(p).stat()
         h.update(f"{Path(p).name}|{st.st_size}|{st.st_mtime_ns}\n".encode())
@@ -121,7 +148,7 @@ def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, ca
                        small_images: bool = False):
     ext = pycolmap.FeatureExtractionOptions()
     ext.max_image_size = int(max_image_size)
-    ext.num_threads = -1
+    ext.num_threads = sfm_threads()
     if small_images:
         # small photos give few SIFT peaks at COLMAP's default threshold: lower it
         ext.sift.peak_threshold = 0.002
@@ -132,7 +159,7 @@ def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, ca
     if progress:
         progress.stage("matching")
     mopt = pycolmap.FeatureMatchingOptions()
-    mopt.num_threads = -1
+    mopt.num_threads = sfm_threads()
     if pairs is None:
         pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)
     else:
@@ -154,6 +181,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
         SceneError: too few photos, or SfM registers too few of them.
     """
     pycolmap = _pycolmap()
+    sfm_threads()   # a bad TSPLUS_SFM_THREADS is an error before any work, never a fallback
     pycolmap.set_random_seed(0)
     warnings = warnings if warnings is not None else []
     photo_dir = Path(photo_dir)
@@ -162,7 +190,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     root, note = cache_root(None, cache)
     if note:
         warnings.append(note)
-    fp = _fingerprint([photo_dir / n for n in names])
+    fp = _fingerprint([photo_dir / n for n in names], RECIPE)
     work = root / f"sfm_{fp[:16]}"
     model_dir = work / "sparse" / "0"
     if (model_dir / "cameras.bin").is_file() and (work / "done.json").is_file():
@@ -187,7 +215,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
                            progress=prog, small_images=small)
         prog.stage("incremental mapping")
         opts = pycolmap.IncrementalPipelineOptions()
-        opts.num_threads = -1
+        opts.num_threads = sfm_threads()
         opts.random_seed = 0
         opts.multiple_models = False
         count = {"n": 0}
@@ -240,7 +268,7 @@ def _neighbour_pairs(cameras: list, names: list, k: int = 12):
 
 def _posed_key(cameras, images, names):
     """Cache key of a triangulation: the names, cameras and a sparse sample of the pixels."""
-    h = hashlib.sha1()
+    h = hashlib.sha1(f"{RECIPE}|".encode())
     for cam, img, n in zip(cameras, images, names):
         h.update(n.encode())
         h.update(np.round(np.array([cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy]), 4).tobytes())
@@ -311,6 +339,7 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
     table (:mod:`.tracks`) whose ids index ``names``.
     """
     pycolmap = _pycolmap()
+    sfm_threads()   # a bad TSPLUS_SFM_THREADS is an error before any work, never a fallback
     pycolmap.set_random_seed(0)
     recipe = f"{key}|min_angle={TRIANGULATION_MIN_ANGLE}|two_view=1"   # a new recipe never reads an old result
     work = Path(cache_dir) / f"tri_{hashlib.sha1(recipe.encode()).hexdigest()[:16]}"
@@ -376,7 +405,7 @@ def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaus
         out = work / "sparse"
         out.mkdir(exist_ok=True)
         opts = pycolmap.IncrementalPipelineOptions()
-        opts.num_threads = -1
+        opts.num_threads = sfm_threads()
         opts.triangulation.min_angle = TRIANGULATION_MIN_ANGLE
         opts.mapper.filter_min_tri_angle = TRIANGULATION_MIN_ANGLE
         opts.triangulation.ignore_two_view_tracks = False
@@ -387,76 +416,6 @@ def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaus
     finally:
         prog.close()
     return rec
-
-
-def frusta_points(cameras: list, images: list, n: int = 20000, bounds=None, seed: int = 0):
-    """Points in the volume that the cameras look at, coloured from the images.
-
-    Depth range: from ``bounds`` ([N, 2] near/far per camera, LLFF) when given, else around the
-    point nearest to all optical axes.  A candidate (random pixel of a random view at a random
-    depth) is kept when at least half of the cameras (and at least 2) see it.
-
-    Returns:
-        ``(points [P,3], colors [P,3])``.
-    """
-    rng = np.random.default_rng(seed)
-    C = np.stack([c.center for c in cameras])                       # [N, 3]
-    D = np.stack([c.R[2] for c in cameras])                         # [N, 3] optical axes
-    if bounds is not None:
-        near = np.full(len(cameras), float(np.percentile(bounds[:, 0], 10)))
-        far = np.full(len(cameras), float(np.percentile(bounds[:, 1], 90)))
-    else:
-        A = np.zeros((3, 3))
-        b = np.zeros(3)
-        for c, d in zip(C, D):
-            P = np.eye(3) - np.outer(d, d)
-            A += P
-            b += P @ c
-        try:
-            focus = np.linalg.solve(A + 1e-9 * np.eye(3), b)
-        except np.linalg.LinAlgError:
-            focus = C.mean(0) + D.mean(0)
-        dist = np.einsum("nj,nj->n", focus - C, D)
-        dist = np.where(dist > 0, dist, np.median(np.linalg.norm(focus - C, axis=1)))
-        near, far = 0.3 * dist, 1.7 * dist
-    need = max(2, int(np.ceil(0.5 * len(cameras)))) if len(cameras) > 1 else 1
-    pts, cols = [], []
-    total = 0
-    for _ in range(20):
-        m = 4 * n
-        vi = rng.integers(0, len(cameras), m)
-        u = rng.random(m)
-        v = rng.random(m)
-        s = rng.random(m)
-        out = np.empty((m, 3))
-        col = np.empty((m, 3))
-        for k in np.unique(vi):
-            sel = vi == k
-            cam = cameras[k]
-            px = u[sel] * cam.width
-            py = v[sel] * cam.height
-            z = near[k] + s[sel] * (far[k] - near[k])
-            xc = np.stack([(px - cam.cx) / cam.fx * z, (py - cam.cy) / cam.fy * z, z], 1)
-            out[sel] = (xc - cam.t) @ cam.R
-            img = images[k]
-            col[sel] = img[np.minimum((py).astype(int), img.shape[0] - 1), np.minimum(px.astype(int), img.shape[1] - 1)]
-        seen = np.zeros(m, int)
-        for cam in cameras:
-            xc = out @ cam.R.T + cam.t
-            z = xc[:, 2]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                uu = cam.fx * xc[:, 0] / z + cam.cx
-                vv = cam.fy * xc[:, 1] / z + cam.cy
-            seen += (z > 1e-6) & (uu >= 0) & (uu < cam.width) & (vv >= 0) & (vv < cam.height)
-        keep = seen >= need
-        pts.append(out[keep])
-        cols.append(col[keep])
-        total += int(keep.sum())
-        if total >= n:
-            break
-    P = np.concatenate(pts)[:n]
-    Cc = np.concatenate(cols)[:n]
-    return P, np.clip(Cc, 0, 1).astype(np.float64)
 
 
 def photo_names(folder: Path) -> list:
