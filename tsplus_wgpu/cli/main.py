@@ -92,6 +92,8 @@ def main(argv=None):
     from ..data.errors import SceneError
     from ..gpu.context import NoAdapterError
     try:
+        from ..data.sfm import sfm_threads
+        sfm_threads()   # a bad TSPLUS_SFM_THREADS is an error at the start, not after loading a scene
         return command_module(args.command).run(args)
     except (UserError, NoAdapterError, SceneError, ValueError, OSError, MemoryError) as exc:
         line = error_line(exc)
