@@ -45,9 +45,9 @@ def sfm_threads() -> int:
     """pycolmap's threads for feature extraction, matching, mapping and triangulation: 1 unless
     ``TSPLUS_SFM_THREADS`` says otherwise (``-1``: all cores).
 
-    With more than one, pycolmap's results depend on the thread schedule: the image and camera
-    ids follow the order the extraction threads finish in, and the matches' geometric
-    verification and the mapper draw their random samples per thread. Lund's triangulation gave
+    With more than one, pycolmap's results depend on the thread schedule (probably: the image
+    and camera ids follow the order the extraction threads finish in, and the matches' geometric
+    verification and the mapper draw their random samples per thread). Lund's triangulation gave
     4,811 to 4,830 points over four runs on 2 cores, its photos' SfM 2 or 21 registered photos
     from one database; on one thread the same points to the last bit, 73 s against 41 s on 2
     cores (once per scene: the result is cached). A faster, varying result:
