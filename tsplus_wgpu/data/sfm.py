@@ -134,9 +134,9 @@ def cache_root(scene_dir=None, override=None) -> tuple[Path, str | None]:
         return tmp, f"{base} is not writable: cache kept in {tmp} (set XDG_CACHE_HOME or TSPLUS_CACHE)"
 
 
-def _fingerprint(paths, recipe=RECIPE) -> str:
+def _fingerprint(paths) -> str:
     """Content key of image files: names, sizes and modification times, and the recipe."""
-    h = hashlib.sha1(f"{recipe}|".encode())
+    h = hashlib.sha1(f"{RECIPE}|".encode())
     for p in paths:
         st = Path(p).stat()
         h.update(f"{Path(p).name}|{st.st_size}|{st.st_mtime_ns}\n".encode())
@@ -190,7 +190,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     root, note = cache_root(None, cache)
     if note:
         warnings.append(note)
-    fp = _fingerprint([photo_dir / n for n in names], RECIPE)
+    fp = _fingerprint([photo_dir / n for n in names])
     work = root / f"sfm_{fp[:16]}"
     model_dir = work / "sparse" / "0"
     if (model_dir / "cameras.bin").is_file() and (work / "done.json").is_file():
