@@ -275,10 +275,37 @@ def test_kernel_layout_follows_the_adapter_type_and_is_overridable(ctx, monkeypa
     assert gpu.choose_layout({"adapter_type": "CPU"}) == "gpu"
     assert gpu.choose_layout({"adapter_type": "CPU"}, "cpu") == "cpu"       # the argument wins
     monkeypatch.setenv("TSPLUS_LAYOUT", "wide")
-    with pytest.raises(ValueError, match="TSPLUS_LAYOUT: expected one of cpu, gpu, got 'wide'"):
+    with pytest.raises(ValueError, match="TSPLUS_LAYOUT: expected one of cpu, gpu, pixel, got 'wide'"):
         gpu.choose_layout({"adapter_type": "CPU"})
-    with pytest.raises(ValueError, match="layout: expected one of cpu, gpu"):
+    with pytest.raises(ValueError, match="layout: expected one of cpu, gpu, pixel"):
         gpu.GpuContext(ctx.adapter, layout="pixels")
     assert kernel_layout(ctx).startswith(ctx.layout + " (")
-    assert "forward 256 invocations a 16x16 tile, 1 px each" in kernel_layout(gpu.GpuContext(ctx.adapter, layout="gpu"))
-    assert "backward 16 invocations a 16x16 tile, 16 px each" in kernel_layout(gpu.GpuContext(ctx.adapter, layout="cpu"))
+    column, pixel = "16 invocations a 16x16 tile, 16 px each", "256 invocations a 16x16 tile, 1 px each"
+    for name, (fwd, bwd) in {"cpu": (column, column), "gpu": (pixel, column), "pixel": (pixel, pixel)}.items():
+        assert kernel_layout(gpu.GpuContext(ctx.adapter, layout=name)) == f"{name} (forward {fwd}; backward {bwd})"
+    from tsplus_wgpu.cli.adapters import LAYOUT_NAMES
+    assert LAYOUT_NAMES == gpu.LAYOUTS       # --help names them without importing wgpu
+
+
+def test_each_layout_renders_with_its_own_kernels(renderer, layout_renderers):
+    """The renderer's forward and backward stages are the layout's kernels, and every layout
+    gives the same image and gradients within float32 (the kernels against the twin:
+    tests/kernels/test_blend.py and test_backward.py)."""
+    from tsplus_wgpu.kernels.backward import RasterizeBackwardGpu
+    from tsplus_wgpu.kernels.blend import RasterizeForwardGpu
+    from tsplus_wgpu.render.backward import BackwardPass
+    model, cam = random_scene(31, 64, 48, sh_k=4)
+    v = np.random.default_rng(6).normal(size=(48, 64, 3)).astype(np.float32)
+    out = {}
+    for name, r in layout_renderers.items():
+        pixel = {w: gpu.layout_kernel(name, w) == "pixel" for w in ("forward", "backward")}
+        assert isinstance(r.blend, RasterizeForwardGpu) == pixel["forward"], name
+        assert isinstance(BackwardPass(r).raster, RasterizeBackwardGpu) == pixel["backward"], name
+        res = r.forward(model, cam, 0.5)
+        out[name] = res.image, r.backward(res, v)
+    img, g = out["cpu"]
+    for name, (img2, g2) in out.items():
+        np.testing.assert_allclose(img2, img, rtol=0, atol=2e-6, err_msg=name)
+        for key in ("v_positions", "v_sh", "v_opacity"):
+            a, b = getattr(g2, key), getattr(g, key)
+            assert np.abs(a - b).max() <= 1e-5 * np.abs(b).max(), (name, key)

@@ -95,7 +95,7 @@ def test_rasterize_backward_gpu(renderer, layout_renderers, case, rounds_per_pas
     """The GPU layout (one invocation a pixel): the same checks, and the CPU layout's work
     counts and last pairs exactly, its floats within rounding (the sums go in another order)."""
     d = forward_data(renderer, case)
-    got = check_backward(layout_renderers["gpu"].ctx, RasterizeBackwardGpu, d, rounds_per_pass)
+    got = check_backward(layout_renderers["pixel"].ctx, RasterizeBackwardGpu, d, rounds_per_pass)
     other = check_backward(layout_renderers["cpu"].ctx, RasterizeBackward, d, None)
     np.testing.assert_array_equal(got[2], other[2])
     np.testing.assert_array_equal(got[0][:, 3].view(np.uint32), other[0][:, 3].view(np.uint32))

@@ -14,12 +14,18 @@ def add_adapter_arg(p):
                         "default: TSPLUS_ADAPTER or the best one (discrete GPU first)")
 
 
+#: :data:`~tsplus_wgpu.gpu.LAYOUTS`, named here so that ``--help`` does not import wgpu (a test
+#: holds the two equal)
+LAYOUT_NAMES = ("cpu", "gpu", "pixel")
+
+
 def add_layout_arg(p):
     """The ``--layout`` option of the benchmarks: the blend kernels' layout."""
-    p.add_argument("--layout", default=None, choices=("cpu", "gpu"),
-                   help="the blend kernels' layout: cpu (16 invocations a 16x16 tile, a column of 16 pixels each) "
-                        "or gpu (one invocation a pixel); default: TSPLUS_LAYOUT or the adapter's type "
-                        "(cpu on a CPU adapter such as lavapipe)")
+    p.add_argument("--layout", default=None, choices=LAYOUT_NAMES,
+                   help="the blend kernels' layout: cpu (16 invocations a 16x16 tile, a column of 16 pixels each, "
+                        "in both passes), gpu (one invocation a pixel in the forward, the column backward: the "
+                        "faster pair on an NVIDIA H100) or pixel (one invocation a pixel in both); default: "
+                        "TSPLUS_LAYOUT or the adapter's type (cpu on a CPU adapter such as lavapipe, else gpu)")
 
 
 def layout_renderer(args):
@@ -52,5 +58,5 @@ def run(args):
               f"{size['max-buffer-size'] / 2**20:,.0f} MiB per buffer, {choose_layout(dict(a.info))} kernel layout")
     print("(* = used by default; set TSPLUS_ADAPTER or --adapter to choose; "
           "TSPLUS_WEBGPU_LIMITS=1 keeps WebGPU's 128 MiB per binding and 256 MiB per buffer; "
-          "TSPLUS_LAYOUT=cpu|gpu sets the kernel layout)")
+          "TSPLUS_LAYOUT=cpu|gpu|pixel sets the kernel layout)")
     return 0

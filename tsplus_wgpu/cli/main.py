@@ -30,7 +30,8 @@ environment:
   TSPLUS_DATA      folder of real scenes for tests and benchmarks (default ../shared/data)
   TSPLUS_DEBUG     1: show the traceback of an error too (for a bug report)
   TSPLUS_WEBGPU_LIMITS  1: WebGPU's default buffer sizes (128 MiB per binding), not the adapter's own
-  TSPLUS_LAYOUT    cpu|gpu: the blend kernels' layout (default: cpu on a CPU adapter, gpu on any other)
+  TSPLUS_LAYOUT    cpu|gpu|pixel: the blend kernels' layout (default: cpu on a CPU adapter, gpu on any
+                   other: the pixel forward with the column backward)
 """
 
 

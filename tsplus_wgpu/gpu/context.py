@@ -130,8 +130,21 @@ def adapter_size_limits(available):
     return out
 
 
-#: the blend kernels' layouts (``GpuContext.layout``)
-LAYOUTS = ("cpu", "gpu")
+#: the blend kernels' layouts (``GpuContext.layout``): each pass's kernel, ``"column"`` (16
+#: invocations a 16x16 tile, a column of 16 pixels each, for CPU drivers) or ``"pixel"`` (256
+#: invocations, one pixel each). ``gpu`` pairs the pixel forward with the column backward: on an
+#: NVIDIA H100 the pixel forward blend is 4x faster than the column one, the pixel backward 2.3-3.3x
+#: slower (docs/measurements.md, the third GPU session); ``pixel`` keeps both pixel kernels.
+LAYOUT_KERNELS = {"cpu": {"forward": "column", "backward": "column"},
+                  "gpu": {"forward": "pixel", "backward": "column"},
+                  "pixel": {"forward": "pixel", "backward": "pixel"}}
+LAYOUTS = tuple(LAYOUT_KERNELS)
+
+
+def layout_kernel(layout, which) -> str:
+    """The blend kernel (``"column"`` or ``"pixel"``) of pass ``which`` (``"forward"`` or
+    ``"backward"``) in ``layout``."""
+    return LAYOUT_KERNELS[layout][which]
 
 
 def choose_layout(info, layout=None):
@@ -167,9 +180,10 @@ class GpuContext:
         poison: fill every new scratch/output buffer with 0xFF bytes (NaN as float, 2^32-1
             as u32) to catch kernels that rely on zero-initialised memory; also on with
             ``TSPLUS_POISON=1``. For tests and debugging.
-        layout: the blend kernels' layout (:data:`LAYOUTS`): ``"cpu"`` (16 invocations a tile,
-            16 pixels each, for CPU drivers) or ``"gpu"`` (one invocation a pixel); default
-            ``TSPLUS_LAYOUT`` or, unset, the adapter's class (``"cpu"`` on a CPU adapter).
+        layout: the blend kernels' layout (:data:`LAYOUT_KERNELS`): ``"cpu"`` (16 invocations a
+            tile, 16 pixels each, for CPU drivers), ``"gpu"`` (one invocation a pixel in the
+            forward, the column backward) or ``"pixel"`` (one invocation a pixel in both);
+            default ``TSPLUS_LAYOUT`` or, unset, the adapter's class (``"cpu"`` on a CPU adapter).
     """
 
     def __init__(self, adapter=None, limits=None, poison=None, layout=None):

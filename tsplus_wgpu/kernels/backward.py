@@ -4,7 +4,7 @@ and replay (``rasterize_backward``), and the chain rule to the triangles' corner
 
 from __future__ import annotations
 
-from ..gpu import Stage
+from ..gpu import Stage, layout_kernel
 from .project import per_item
 from ..gpu.wgsl import constant
 
@@ -56,15 +56,16 @@ class RasterizeBackward(Stage):
 
 
 class RasterizeBackwardGpu(RasterizeBackward):
-    """The same backward blend in the GPU layout (``rasterize_backward_gpu.wgsl``: one
-    invocation a pixel, 256 a tile): the same bindings, rounds, windows and outputs."""
+    """The same backward blend as the pixel kernel (``rasterize_backward_gpu.wgsl``, the
+    ``pixel`` layout's: one invocation a pixel, 256 a tile): the same bindings, rounds, windows
+    and outputs."""
 
     stage = "rasterize_backward_gpu"
 
 
 def backward_stage(ctx):
     """The backward blend in ``ctx``'s kernel layout (:attr:`~tsplus_wgpu.gpu.GpuContext.layout`)."""
-    return (RasterizeBackwardGpu if ctx.layout == "gpu" else RasterizeBackward)(ctx)
+    return (RasterizeBackwardGpu if layout_kernel(ctx.layout, "backward") == "pixel" else RasterizeBackward)(ctx)
 
 
 class ProjectBackward(Stage):

@@ -5,6 +5,7 @@ outgrow one storage binding."""
 from __future__ import annotations
 
 from ..gpu.chunks import pages
+from ..gpu.context import layout_kernel
 from ..gpu.stage import Stage
 from ..gpu.wgsl import constant
 
@@ -18,10 +19,10 @@ def kernel_layout(ctx=None):
     :attr:`~tsplus_wgpu.gpu.GpuContext.layout`; the CPU layout when ``ctx`` is None) and, read
     from the WGSL, each kernel's invocations a tile and pixels each."""
     name = "cpu" if ctx is None else ctx.layout
-    suffix = "" if name == "cpu" else "_gpu"
     tile = int(constant("TILE", "frame"))
     parts = []
     for kernel, short in (("rasterize_forward", "forward"), ("rasterize_backward", "backward")):
+        suffix = "_gpu" if layout_kernel(name, short) == "pixel" else ""
         threads = int(constant("THREADS", kernel + suffix))
         parts.append(f"{short} {threads} invocations a {tile}x{tile} tile, {tile * tile // threads} px each")
     return f"{name} ({'; '.join(parts)})"
@@ -62,7 +63,7 @@ class RasterizeForward(Stage):
 
 
 class RasterizeForwardGpu(RasterizeForward):
-    """The same blend in the GPU layout (``rasterize_forward_gpu.wgsl``: one invocation a pixel,
+    """The same blend as the pixel kernel (``rasterize_forward_gpu.wgsl``: one invocation a pixel,
     256 a tile): the same bindings, passes and outputs."""
 
     stage = "rasterize_forward_gpu"
@@ -91,14 +92,14 @@ class RasterizeIds(RasterizeForward):
 
 
 class RasterizeIdsGpu(RasterizeIds):
-    """The triangle-ID pass in the GPU layout."""
+    """The triangle-ID pass as the pixel kernel."""
 
     stage = "rasterize_forward_gpu"
 
 
 def forward_stage(ctx, triangle_ids=False):
     """The forward blend (or, with ``triangle_ids``, the ID pass) in ``ctx``'s kernel layout."""
-    gpu = ctx.layout == "gpu"
+    gpu = layout_kernel(ctx.layout, "forward") == "pixel"
     if triangle_ids:
         return (RasterizeIdsGpu if gpu else RasterizeIds)(ctx)
     return (RasterizeForwardGpu if gpu else RasterizeForward)(ctx)
