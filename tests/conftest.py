@@ -32,6 +32,20 @@ def layout_renderers(renderer):
             for name in LAYOUTS}
 
 
+@pytest.fixture(scope="module")      # module: a module may have its own renderer
+def binding_renderer(renderer):
+    """A renderer whose storage bindings are smaller than its buffers, as the tests of arrays
+    past one binding need: the session's own where they are (llvmpipe: 128 MiB against 2 GiB),
+    else one at WebGPU's default sizes (128 MiB against 256 MiB), on an adapter that binds a
+    whole buffer (an H100: 2 GiB both) where those tests would otherwise skip."""
+    from tsplus_wgpu import Renderer
+    from tsplus_wgpu.gpu import GpuContext
+    lim = renderer.ctx.limits
+    if lim["max-storage-buffer-binding-size"] < lim["max-buffer-size"]:
+        return renderer
+    return Renderer(GpuContext(renderer.ctx.adapter, limits="webgpu", layout=renderer.ctx.layout))
+
+
 def pytest_report_header(config):
     try:
         from tsplus_wgpu.gpu import adapter_description, select_adapter

@@ -392,14 +392,27 @@ def test_cli_train_with_normals(tiny, tiny_maps, tmp_path):
 #: at method.md's weight 0.05 the loss tilts triangles only through the positions (Adam lr <=
 #: 0.0015 per step), and what it does to opacities is overridden by the floor's ramp to 0.9999,
 #: except where pruning acts on it.
+#: On an NVIDIA H100 (2026-11-27) the one held-out view went the other way: 0.3065 without,
+#: 0.3133 with (training views 0.3167 -> 0.2914): float32 sums in the card's order part the
+#: 300-step trajectories, and one view of a tiny scene is a coin toss. So the held-out error is
+#: the mean over that view and NOVEL_VIEWS more on the cameras' loop (ground-truth maps of the
+#: procedural mesh). llvmpipe, cpu layout: training views 0.2958 -> 0.2832, held-out and novel
+#: 0.3064 -> 0.2946.
 NORMAL_STEPS = 300
 NORMAL_GAIN = 0.005
+NOVEL_VIEWS = 12
 
 
 def test_normal_loss_lowers_the_normal_error_of_a_short_run(renderer, tiny, tiny_maps):
     from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    from tsplus_wgpu.data.procedural import make_cameras, render_normal_map
     maps = _train_maps(tiny, tiny_maps)
     k = nl.NormalLoss(renderer)
+    # held out: the scene's held-out view and NOVEL_VIEWS more on the cameras' loop (one view alone
+    # went either way with the float32 order of the adapter)
+    g = tiny.gt_mesh
+    novel = [(cam, render_normal_map((g.vertices, g.faces), cam))
+             for cam in make_cameras(NOVEL_VIEWS, tiny.cameras[0].width, tiny.cameras[0].height, seed=11)]
     errs = {}
     for name, normals in (("without", None), ("with", maps)):
         # the surfaces' normals: the backdrop behind them (a far sphere, the same without and with the
@@ -411,9 +424,11 @@ def test_normal_loss_lowers_the_normal_error_of_a_short_run(renderer, tiny, tiny
         t = Trainer(tiny, cfg, renderer=renderer, normals=normals)
         t.train(progress=False)
         mesh = Trainer.mesh_model(*t.final_mesh())
-        for split, views in (("train", tiny.train_indices), ("held-out", tiny.test_indices)):
-            e = [nl.normal_error(nl.render_normals(renderer, mesh, tiny.cameras[v], 1e-4, loss=k),
-                                 *nl.prepare_prior(tiny_maps[v])) for v in views]
+        held = [(tiny.cameras[v], tiny_maps[v]) for v in tiny.test_indices] + novel
+        for split, views in (("train", [(tiny.cameras[v], tiny_maps[v]) for v in tiny.train_indices]),
+                             ("held-out", held)):
+            e = [nl.normal_error(nl.render_normals(renderer, mesh, cam, 1e-4, loss=k), *nl.prepare_prior(m))
+                 for cam, m in views]
             errs[name, split] = {key: float(np.mean([x[key] for x in e])) for key in ("loss", "angle_deg")}
     for split in ("train", "held-out"):
         a, b = errs["without", split], errs["with", split]

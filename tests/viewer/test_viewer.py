@@ -44,11 +44,14 @@ def _cam(w=96, h=72, eye=(0.3, -2.2, 1.4), target=(0.0, 0.0, 0.0)):
     return Camera(w, h, fx * 1.3, fy * 1.3, cx + 0.3, cy - 0.2, m)
 
 
-def _assert_same(frame_u8, ref, mesh, cam, near=0.01, tol=0.5 / 255 + 1e-5):
+def _assert_same(frame_u8, ref, mesh, cam, near=0.01, tol=0.6 / 255 + 1e-5):
     """The viewer's 8-bit frame is the mesh renderer's image to within its rounding, plus, per
     pixel, the colour's slope times 1/256 px: the two pipelines compute clip coordinates apart, so
     where the adapter interpolates from snapped vertices (an NVIDIA H100 does) a vertex may land one
-    grid step apart (there 0.56 / 255 at most, llvmpipe <= 0.5 / 255)."""
+    grid step apart. The rounding is 0.6 of an 8-bit step, not 0.5: Vulkan leaves the rounding of
+    float to unorm to the implementation, and Direct3D allows 0.6 ULP (llvmpipe rounds to nearest,
+    <= 0.5 / 255; an H100 drew the live trainer's buffers up to 0.557 / 255 from the renderer,
+    70 pixels past a 0.5 allowance, 2026-11-27)."""
     _, _, tid, _ = mesh_raster(mesh, cam, near=near)
     allowed = tol + colour_slope(mesh, cam, tid)[..., None] * 2.0 ** -8
     d = np.abs(frame_u8.astype(np.float64) / 255.0 - np.clip(ref, 0, 1))
@@ -349,12 +352,13 @@ def test_hud_font():
     assert set(np.unique(m)) == {0, 255}
 
 
-def test_wireframe_colours_every_vertex_of_sh_past_one_binding(renderer):
+def test_wireframe_colours_every_vertex_of_sh_past_one_binding(binding_renderer):
     """The wireframe's vertex colours come from the forward's sh_to_color, a range of vertices a
     binding: a model whose SH (SH degree 3) outgrow the device's storage binding still colours its
     last vertices. Two triangles, one over the first vertices and one over the last; every other
     vertex has random SH, so a colour read from the wrong row shows. (Until 2026-11-27 the wire
     bound the first binding's worth of SH: the last triangle came out in another colour.)"""
+    renderer = binding_renderer      # bindings smaller than buffers on every adapter
     lim = int(renderer.ctx.limits["max-storage-buffer-binding-size"])
     n = max(720_000, lim // 192 + 1000)
     if 192 * n > int(renderer.ctx.limits["max-buffer-size"]) or n > 3_000_000:
