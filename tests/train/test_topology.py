@@ -168,6 +168,16 @@ def test_densify_stop_criterion():
     assert s.densify_stopped is not None and "stopped improving" in s.densify_stopped
     assert s.events[-1]["event"] == "densify_stop" and s.events[-1]["iteration"] == 2500
 
+    # a rise is the schedule's (a prune, the floor ramp), not a plateau: office's default run
+    # 2026-11-27, 0.07036 -> 0.07685 (-9 %) at iteration 710
+    s = _strategy(stop_rel=0.01, stop_windows=3)
+    s.l1_windows = [0.070, 0.071, 0.070, 0.075, 0.078, 0.077]
+    s.check_stop(710, 100)
+    assert s.densify_stopped is None
+    s.l1_windows += [0.0770, 0.0768, 0.0771]                # then flat within 1 %: a plateau
+    s.check_stop(900, 100)
+    assert s.densify_stopped is not None and "within 0.01" in s.densify_stopped
+
     s = _strategy(stop_rel=0.01, max_vertices=100)
     s.check_stop(1000, 100)
     assert "max-vertices" in s.densify_stopped
