@@ -4,9 +4,10 @@ draws) and the trainer's own renderer agree on held-out views of the procedural 
 Topology is off: 150 quick iterations on the tiny scene are too short for pruning to pay off
 (with it on the mesh ends below the initial model, 18.85 vs 20.99 dB, as a few hundred
 scattered triangles whose centroid order and per-pixel depth order differ more: 18.64 vs
-18.44 dB on the one held-out view), and this test is about the two renderers, not topology. The colour detail is off too: a fit after
-training, not either renderer, whose splits add seams that the splat renderer lets a little
-background through (llvmpipe: 0.95 dB apart with it, 0.89 without)."""
+18.44 dB on the one held-out view), and this test is about the two renderers, not topology.
+The colour detail is off too: a fit after training, not either renderer, whose splits add
+seams that the splat renderer lets a little background through (llvmpipe: 0.95 dB apart with
+it, 0.89 without)."""
 
 import json
 
@@ -33,8 +34,8 @@ def test_mesh_and_trainer_renderer_agree_after_training(tmp_path):
     # (20.81 / 20.31), 0.61 with the shell's backdrop beyond the training views kept (21.69 / 21.09:
     # large far triangles, where centroid order errs most). 2026-11-27, llvmpipe: 0.89 (22.87 /
     # 21.98; 0.95 with the colour detail, 22.23 / 21.28); an NVIDIA H100 with the detail: 1.30
-    # (22.12 / 20.82: its float32 order, another 150-step trajectory). A dropped term in either renderer costs several dB; the engine's view is
-    # never the worse one.
+    # (22.12 / 20.82: its float32 order, another 150-step trajectory). A dropped term in either
+    # renderer costs several dB; the engine's view is never the worse one.
     assert -0.1 <= mesh - splat <= 1.5, (mesh, splat)
     # the default keeps the triangles hidden in every training view: more layers, so centroid order
     # composites some hidden ones in front (splat 23.14 dB) where the depth test does not (mesh
