@@ -4,6 +4,7 @@ distortion, chair: NeRF-synthetic).  The folder comes from $TSPLUS_DATA, default
 
 import json
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -120,6 +121,18 @@ def test_fox_points_auto_triangulates(tmp_path):
     # triangulated at full size: another downscale reuses the same points
     other = load_scene(scene_dir("fox"), downscale=4, frames=list(range(0, 10, 2)), cache_dir=tmp_path)
     assert np.array_equal(other.points, sc.points) and any("cached" in w for w in other.warnings)
+    # the key holds the images' bytes, not their file times: a fresh copy of the scene (every file
+    # new) reuses the cache, a changed image does not (keyed on modification times until 2026-11-27,
+    # every session's fresh copy of the shared data triangulated again)
+    copy = shutil.copytree(scene_dir("fox"), tmp_path / "copy" / "fox", copy_function=shutil.copyfile)
+    for f in copy.rglob("*"):
+        os.utime(f, (1e9, 1e9))                             # and surely other times than the originals'
+    again = load_scene(copy, downscale=8, frames=list(range(0, 10, 2)), cache_dir=tmp_path)
+    assert np.array_equal(again.points, sc.points) and any("cached" in w for w in again.warnings)
+    first = copy / json.loads((copy / "transforms.json").read_text())["frames"][2]["file_path"]  # training
+    first.write_bytes(first.read_bytes() + b"\0")        # a JPEG decoder ignores what follows its end
+    changed = load_scene(copy, downscale=8, frames=list(range(0, 10, 2)), cache_dir=tmp_path)
+    assert not any("cached" in w for w in changed.warnings)
 
 
 def test_lund_points_most_takes_the_larger_set_and_keeps_two_view_tracks(tmp_path, monkeypatch):

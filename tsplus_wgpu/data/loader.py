@@ -303,14 +303,13 @@ def _full_size_specs(fmt, root, images, specs, image_dir):
 
 
 def _triangulation_key(specs, background) -> str:
-    """Cache key of a triangulation: the image files (names, sizes, modification times), their
-    cameras and lens distortion, the background, and the loader's version of the recipe."""
-    from .sfm import RECIPE  # noqa: PLC0415
+    """Cache key of a triangulation: the image files (names and bytes, :func:`~.sfm.file_digest`),
+    their cameras and lens distortion, the background, and the loader's version of the recipe."""
+    from .sfm import RECIPE, file_digest  # noqa: PLC0415
     h = hashlib.sha1(f"tsplus-triangulation-{RECIPE}|".encode())
     for f in specs:
         try:
-            st = Path(f.path).stat()
-            h.update(f"{f.name}|{Path(f.path).name}|{st.st_size}|{st.st_mtime_ns}|".encode())
+            h.update(f"{f.name}|{Path(f.path).name}|{file_digest(f.path)}|".encode())
         except OSError:
             h.update(f"{f.name}|missing|".encode())
         c = f.camera
