@@ -10,8 +10,9 @@
 # Environment: BUDGET seconds in all (default 540); TSPLUS_DATA the real scenes (office is
 # trained when it is there); PYTHON the interpreter (default: .venv/bin/python if present, else
 # python3); TSPLUS_ADAPTER as usual. On a bare machine that has Python and numpy but not this
-# package's other dependencies (no wgpu there), put their wheels (for that machine's Python) in .whl/ and the
-# Vulkan loader's .deb files in .gl/: they are unpacked first (the loader into /, as root).
+# package's other dependencies (no wgpu there), put their wheels (for that machine's Python)
+# in .whl/ and the Vulkan loader's .deb files in .gl/: they are unpacked first (the loader into
+# /, as root).
 # Writes two files: gpu_check.log (every step's output, with its time and the load) and
 # gpu_check.json (every benchmark's JSON, the test counts and the run's metrics).
 set -u
