@@ -174,7 +174,8 @@ class TrainConfig:
               "and a first iteration that is not 10x slower", check=real(0.0, 1.0))
     densify_stop_rel: float = option(
         0.01, "stop densifying when the mean training L1 of the last 3 topology windows is within this fraction "
-              "of the 3 before, up or down (flat; a larger rise is the schedule's doing, not a plateau) (0: never)", flag="--densify-stop", check=real(0.0, 1.0), type=float,
+              "of the 3 before, up or down (flat; a larger rise is the schedule's doing, not a plateau) (0: never)",
+        flag="--densify-stop", check=real(0.0, 1.0), type=float,
         metavar="DENSIFY_STOP")
     densify_stop_windows: int = option(3, "K of the densification stop: windows in each of the two compared means",
                                       check=integer(1))
