@@ -129,9 +129,11 @@ def test_the_cpu_default_takes_the_most_iterations_that_fit_its_time():
     assert chosen[(135, 240), 17_000] < chosen[(200, 150), 9000] < 3000 == chosen[(64, 48), 100]
     assert cpu_iterations(cfg, _scene(1000, 1000, views=50, points=100_000)) == 600          # never fewer
     assert cpu_iterations(cfg, _scene(200, 150, views=50, points=9000), seconds=10 ** 6) == 3000
-    # only the points the run meshes count: at most init_points_share (0.25) x the vertex cap (60,000) = 15,000
+    # only the points the run meshes count: at most init_points_share (0.5) x the vertex cap (60,000) = 30,000
+    most = initial_points_bound(cfg, _scene(200, 150, views=50).cameras)
+    assert most == 30_000
     assert cpu_iterations(cfg, _scene(200, 150, views=50, points=150_000)) == \
-        cpu_iterations(cfg, _scene(200, 150, views=50, points=15_000)) > \
+        cpu_iterations(cfg, _scene(200, 150, views=50, points=most)) > \
         cpu_iterations(dataclasses.replace(cfg, init_points_share=0.0), _scene(200, 150, views=50, points=150_000))
 
 
