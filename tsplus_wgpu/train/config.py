@@ -172,9 +172,10 @@ class TrainConfig:
              "by 3 or more views first, a fixed random choice within; 0: all), so that a scene whose photos "
              "triangulate into many points (the cup: 51,071 for a cap of 60,000) starts with room to densify "
              "and first iterations a CPU can afford. 0.5 against the former 0.25, measured on the four shared real "
-             "scenes: CPU default cup +0.21 dB, fox +0.69, office and lund unchanged (all their points fit "
-             "either way); at a quarter of the pixels +0.44 / +1.41 / -0.06 / 0.00 dB. 1.0 won more at a quarter of "
-             "the pixels but cost the cup's default run 1.2 dB in iterations (docs/measurements.md)",
+             "scenes: CPU default cup +0.21 dB (seed 1: +0.25), fox +0.69, office and lund unchanged (all their "
+             "points fit either way); at a quarter of the pixels, mean of seeds 0 and 1, +0.12 / +1.31 / +0.36 / "
+             "+0.02 dB (cup / office / fox / lund). 1.0 won more at a quarter of the pixels but cost the cup's "
+             "default run 1.2 dB in iterations (docs/measurements.md)",
         check=real(0.0, 1.0))
     densify_stop_rel: float = option(
         0.01, "stop densifying when the mean training L1 of the last 3 topology windows is within this fraction "
