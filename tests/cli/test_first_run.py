@@ -64,6 +64,11 @@ def test_a_cpu_adapter_plans_the_quick_preset_at_a_small_size():
     assert plan_run(_args(scene="procedural:small"), True, _not_asked).downscale_from == "default"
     p = plan_run(_args(), False, _not_asked)
     assert (p.preset, p.downscale, p.preset_from, p.downscale_from) == ("paper", 1, "default", "default")
+    # the initial points: at most half the vertex cap's where the CPU plan picks the iterations, else every point
+    assert plan_run(_args(), True, lambda: [(800, 600)]).init_points_share == 0.5
+    assert p.init_points_share is None
+    for argv in (("--iterations", "500"), ("--preset", "quick")):
+        assert plan_run(_args(*argv), True, lambda: [(800, 600)]).init_points_share is None, argv
 
 
 def test_a_config_file_that_sets_the_preset_or_iterations_keeps_it(tmp_path):
@@ -71,12 +76,19 @@ def test_a_config_file_that_sets_the_preset_or_iterations_keeps_it(tmp_path):
         path = tmp_path / "c.toml"
         path.write_text(text)
         assert _plan("--config", str(path))[:2] == (preset, 4), text
+    # a file that sets the initial points' share keeps it (the CPU plan's 0.5 does not replace it)
+    path.write_text("init_points_share = 0.0\n")
+    assert plan_run(_args("--config", str(path)), True, lambda: [(800, 600)]).init_points_share is None
 
 
 def test_resume_keeps_the_runs_preset_and_downscale():
     # and its iterations: a plain --resume of the CPU's 600-iteration run is not a 3000-iteration one
     p = plan_run(_args(), True, _not_asked, dict(quick=True, iterations=600, extra=dict(downscale=4)))
     assert (p.iterations, p.iterations_from) == (600, "checkpoint")
+    # ... and its initial points' share, as it recorded it (runs from before it was recorded: the default)
+    assert p.init_points_share is None
+    assert plan_run(_args(), True, _not_asked, dict(quick=True, iterations=600, init_points_share=0.5,
+                                                    extra=dict(downscale=4))).init_points_share == 0.5
     assert plan_run(_args("--iterations", "900"), True, _not_asked, dict(quick=True, iterations=600)).iterations is None
     ckpt = dict(quick=True, extra=dict(downscale=4, scene="/x"))
     for cpu in (True, False):
@@ -113,7 +125,9 @@ def test_the_plan_lines_say_what_was_chosen_and_how_to_undo_it():
 
 
 def test_the_cpu_default_takes_the_most_iterations_that_fit_its_time():
-    cfg = TrainConfig.preset(quick=True)
+    # the CPU adapter's plan meshes at most half the vertex cap's points (elsewhere every point)
+    assert TrainConfig().init_points_share == 0.0 and planning.CPU_INIT_POINTS_SHARE == 0.5
+    cfg = dataclasses.replace(TrainConfig.preset(quick=True), init_points_share=planning.CPU_INIT_POINTS_SHARE)
     meshed = lambda scene: min(len(scene.points), initial_points_bound(cfg, scene.cameras))
     seconds = lambda n, scene: planning.cpu_seconds(dataclasses.replace(cfg, iterations=n), scene.cameras,
                                                     planning.TRIANGLES_PER_POINT * meshed(scene))

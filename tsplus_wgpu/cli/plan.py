@@ -4,7 +4,8 @@ and what it prints about that (:func:`plan_lines`).
 On a CPU adapter (lavapipe, llvmpipe) a first ``tsplus train SCENE --out DIR`` takes the quick
 preset at a downscale that keeps a training image within :data:`CPU_MAX_PIXELS`, and as many
 iterations as fit :data:`CPU_TRAIN_SECONDS` of training on 2 cores (:func:`cpu_iterations`, from
-the time model :func:`cpu_seconds`), so that it takes about a quarter of an hour, not days. On a
+the time model :func:`cpu_seconds`), so that it takes about a quarter of an hour, not days, meshing
+at most :data:`CPU_INIT_POINTS_SHARE` of the vertex cap in initial points (elsewhere every point). On a
 GPU adapter: the paper preset at full size. A resumed run keeps its own. The iteration count is
 a function of the scene and the settings only, never of a clock, so the same command trains the
 same model on any machine; only its duration differs."""
@@ -39,6 +40,11 @@ CPU_SECONDS_PER_TRIANGLE = 2.26e-6
 #: cost at the cap's vertex count in triangles (office and lund over 3000 quick iterations: 0.235
 #: and 0.196 s measured against 0.218 and 0.182 s at the cap)
 CPU_LATE_FACTOR = 1.08
+#: the most initial points a CPU adapter's default run meshes, as a share of its vertex cap
+#: (``init_points_share``; elsewhere every point): the initial mesh's Delaunay faces, about 12 a
+#: point, are drawn until the first prune, so every point costs a fixed-time run iterations (the
+#: cup's default run: 24.57 dB at 0.5 and 1,700 iterations against 23.37 with every point and 1,100)
+CPU_INIT_POINTS_SHARE = 0.5
 #: triangles of the initial mesh (the points' Delaunay faces and the background shell) per
 #: initial point, for the time model before the mesh is built: cup 11.0, fox 11.3, office 11.7,
 #: lund 14.1
@@ -124,7 +130,7 @@ class Plan:
     ``"checkpoint"``, ``"CPU adapter"`` or ``"default"``); ``iterations`` where the plan sets
     them: a resumed run's own (``iterations_from="checkpoint"``); ``iterations_from="CPU
     adapter"`` with ``iterations=None``: the CPU adapter's default, :func:`cpu_iterations` once
-    the scene is loaded."""
+    the scene is loaded, meshing at most ``init_points_share`` of the vertex cap in points."""
 
     preset: str | None
     downscale: int
@@ -135,6 +141,10 @@ class Plan:
     #: (``"CPU adapter"`` or ``"checkpoint"``)
     iterations: int | None = None
     iterations_from: str | None = None
+    #: the ``init_points_share`` the plan sets (None: the config file's or the default, every point):
+    #: :data:`CPU_INIT_POINTS_SHARE` where the CPU adapter's plan picks the iterations, a resumed
+    #: run's own
+    init_points_share: float | None = None
 
 
 def plan_run(args, is_cpu, image_sizes, checkpoint=None):
@@ -144,12 +154,15 @@ def plan_run(args, is_cpu, image_sizes, checkpoint=None):
     ``--resume`` continues its run; on a CPU adapter (``is_cpu``), the quick preset with
     :func:`cpu_iterations` (unless ``--iterations`` is given) and :func:`cpu_downscale` of the
     largest image (``image_sizes()``: every image's ``(width, height)`` before any downscale; not
-    asked for the procedural scene, whose sizes are fixed); else the paper preset at full size."""
+    asked for the procedural scene, whose sizes are fixed) and at most :data:`CPU_INIT_POINTS_SHARE`
+    of the vertex cap in initial points (unless the ``--config`` file sets ``init_points_share``);
+    else the paper preset at full size."""
     from .scenes import is_procedural
     from ..train.config import load_config_file
     preset, preset_from = args.preset, "--preset"
+    in_file = set(load_config_file(args.config) if args.config else {})
     if preset is None:
-        if {"quick", "iterations"} & set(load_config_file(args.config) if args.config else {}):
+        if {"quick", "iterations"} & in_file:
             preset_from = "--config"
         elif checkpoint is not None:
             preset, preset_from = ("quick" if checkpoint.get("quick") else "paper"), "checkpoint"
@@ -169,7 +182,13 @@ def plan_run(args, is_cpu, image_sizes, checkpoint=None):
         iterations, iterations_from = int(checkpoint["iterations"]), "checkpoint"
     elif args.iterations is None and preset_from == "CPU adapter":
         iterations_from = "CPU adapter"
-    return Plan(preset, downscale, preset_from, downscale_from, iterations, iterations_from)
+    share = None           # the initial points: a resumed run's own record, or the CPU plan's bound
+    if "init_points_share" not in in_file:
+        if checkpoint is not None and "init_points_share" in checkpoint:
+            share = float(checkpoint["init_points_share"])
+        elif iterations_from == "CPU adapter":
+            share = CPU_INIT_POINTS_SHARE
+    return Plan(preset, downscale, preset_from, downscale_from, iterations, iterations_from, share)
 
 
 #: how the plan line names where a choice came from (:attr:`Plan.preset_from`, ``downscale_from``)

@@ -28,8 +28,8 @@ def add_points_arg(p):
                    help="initial points: auto (the scene's SfM points or a triangulation with pycolmap from the "
                         "posed training images at full size, cached, whichever holds more points), sfm (the SfM "
                         "points; triangulated only when the scene has none), triangulate (always triangulated), "
-                        "frusta (points spread in the cameras' frusta). At most --config's init_points_share of "
-                        "the vertex cap are meshed")
+                        "frusta (points spread in the cameras' frusta). All are meshed, except in the CPU adapter's "
+                        "default run: at most half the vertex cap (--config's init_points_share)")
 
 
 def is_procedural(scene_arg):

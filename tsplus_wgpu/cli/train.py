@@ -325,6 +325,8 @@ def run(args):
     settings = resolve_settings(args)
     scene = load_cli_scene(args.scene, args.downscale, args.seed, images=args.images,   # prints its warnings
                            points=TRAIN_POINTS[args.points], progress=not args.no_progress)
+    if plan.init_points_share is not None:       # the CPU adapter's plan: not every point, for its iterations
+        settings["init_points_share"] = plan.init_points_share
     if plan.iterations_from == "CPU adapter":     # what fits a quarter of an hour, now that the scene is known
         settings["iterations"] = cpu_iterations(TrainConfig(**settings), scene)
     cfg = config_for_scene(args, settings, scene)

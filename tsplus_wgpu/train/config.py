@@ -168,14 +168,15 @@ class TrainConfig:
              "--downscale 4 (42k pixels per image) grew past 15 vertices per pixel by iteration 1100 and hit the "
              "storage-binding limit", flag="--vertex-budget", check=real(0.0), type=float, metavar="F")
     init_points_share: float = option(
-        0.5, "the initial mesh is built from at most this share of the densification cap in points (those seen "
-             "by 3 or more views first, a fixed random choice within; 0: all), so that a scene whose photos "
-             "triangulate into many points (the cup: 51,071 for a cap of 60,000) starts with room to densify "
-             "and first iterations a CPU can afford. 0.5 against the former 0.25, measured on the four shared real "
-             "scenes: CPU default cup +0.21 dB (seed 1: +0.25), fox +0.69, office and lund unchanged (all their "
-             "points fit either way); at a quarter of the pixels, mean of seeds 0 and 1, +0.12 / +1.31 / +0.36 / "
-             "+0.02 dB (cup / office / fox / lund). 1.0 won more at a quarter of the pixels but cost the cup's "
-             "default run 1.2 dB in iterations (docs/measurements.md)",
+        0.0, "the initial mesh is built from at most this share of the densification cap in points (those seen "
+             "by 3 or more views first, a fixed random choice within; 0: all). 0 (every point) unless the CPU "
+             "adapter's plan picks the iterations: that plan meshes at most 0.5 x the cap's points, since every "
+             "point costs a CPU run iterations (the initial mesh's Delaunay faces, about 12 a point, are drawn "
+             "until the first prune; the cup's default run: 24.57 dB at 0.5 and 1,700 iterations, 23.37 with "
+             "every point and the 1,100 that then fit). Where time does not bind, every point wins: at a quarter "
+             "of the CPU default's pixels and 2,000 quick iterations, 0.5 -> every point gives cup 24.74 -> "
+             "25.81, office 24.27 -> 25.62, fox 24.57 -> 26.19 dB (lund meshes all its points either way), "
+             "with 17-21 % of the fixed schedule's vertices (docs/measurements.md)",
         check=real(0.0, 1.0))
     densify_stop_rel: float = option(
         0.01, "stop densifying when the mean training L1 of the last 3 topology windows is within this fraction "
