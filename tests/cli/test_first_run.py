@@ -174,6 +174,7 @@ def test_a_first_run_prints_its_plan_and_estimate_and_resumes_plainly(renderer, 
     assert any(x.startswith("vertex cap: 24,576 (vertex budget 2.0 x 12,288 training pixels") for x in out)
     cfg = json.loads((tmp_path / "run" / "config.json").read_text())
     assert cfg["quick"] and cfg["extra"]["downscale"] == 2 and cfg["vertex_budget"] == 2.0
+    assert cfg["init_points_share"] == 0.0          # its iterations given: every point
     # resuming takes the run's own preset and downscale; another --downscale is refused in one line
     r = _cli("train", "scene", "--out", "run", "--iterations", 30, "--resume", "--overwrite", "--no-progress",
              cwd=tmp_path)
@@ -195,14 +196,16 @@ def test_a_default_cpu_run_trains_the_iterations_its_plan_chose(renderer, tmp_pa
     asked = []
 
     def short(cfg, scene, seconds=planning.CPU_TRAIN_SECONDS):
-        asked.append((cfg.quick, scene.cameras[scene.train_indices[0]].width, len(scene.points)))
+        asked.append((cfg.quick, scene.cameras[scene.train_indices[0]].width, len(scene.points), cfg.init_points_share))
         return 12
     monkeypatch.setattr(train_cli, "cpu_iterations", short)
     monkeypatch.chdir(tmp_path)
     assert main(["train", "procedural:tiny", "--out", "run", "--no-progress", "--color-detail", "off"]) == 0
     assert asked and asked[0][:2] == (True, 64) and asked[0][2] > 0
     assert "plan: quick preset (for the CPU adapter), 12 iterations (for the CPU adapter) at 64x48" in capsys.readouterr().out
-    assert json.loads((tmp_path / "run" / "config.json").read_text())["iterations"] == 12
+    saved = json.loads((tmp_path / "run" / "config.json").read_text())
+    # the plan's time model and the run itself mesh at most half the vertex cap's points
+    assert saved["iterations"] == 12 and saved["init_points_share"] == 0.5 == asked[0][3]
 
 
 def test_points_flag_chooses_the_initial_points(tmp_path):
