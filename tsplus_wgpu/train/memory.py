@@ -249,7 +249,7 @@ def check_fits(ctx, num_vertices, num_triangles, sh_degree, cameras):
         raise ValueError(f"device memory: training {num_vertices:,} vertices and {num_triangles:,} triangles on "
                          f"{len(cameras)} views of {w}x{h} needs about {need / 2**30:.1f} GiB, but {ctx.name} has "
                          f"{avail / 2**30:.1f} GiB available (this machine's free memory); use --downscale, fewer "
-                         f"initial points or a GPU")
+                         f"initial points (e.g. init_points_share = 0.5 in a --config file) or a GPU")
 
 
 __all__ = ["available_bytes", "check_fits", "CHUNKED", "FAMILIES", "training_buffers", "training_bytes", "largest_model"]
