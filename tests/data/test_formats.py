@@ -404,3 +404,31 @@ def test_cli_parser_registration():
     add_parser(p.add_subparsers(dest="command"))
     args = p.parse_args(["inspect", "procedural:tiny", "--split", "none", "--quiet"])
     assert args.func is run and args.split == "none"
+
+
+def test_exif_orientation_is_ignored_as_colmap_ignores_it(tmp_path):
+    """Phone photos taken upright are often stored sideways with an EXIF orientation tag.
+    COLMAP (pycolmap) calibrates and poses the pixel grid as stored, so the loader must read
+    that grid too: a rotated image would not match its camera."""
+    from PIL import Image
+    from tsplus_wgpu.data.images import read_image_raw, read_image_size
+    from tsplus_wgpu.data.sfm import _pycolmap
+    rng = np.random.default_rng(0)
+    stored = (rng.uniform(0, 1, (90, 160, 3)) * 255).astype(np.uint8)
+    stored[:30, :50] = 255                                   # a bright corner at the stored top left
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    im = Image.fromarray(stored)
+    exif = im.getexif()
+    exif[0x0112] = 6                                         # "rotate 90 degrees clockwise to view"
+    im.save(folder / "p.jpg", exif=exif.tobytes(), quality=95)
+    with Image.open(folder / "p.jpg") as check:
+        assert check.getexif().get(0x0112) == 6
+    img = read_image_raw(folder / "p.jpg")
+    assert img.shape == (90, 160, 3) and read_image_size(folder / "p.jpg") == (160, 90)
+    assert img[:30, :50].mean() > 0.95 and img[-30:, -50:].mean() < 0.8
+    pycolmap = _pycolmap()
+    pycolmap.extract_features(tmp_path / "db.db", folder, camera_mode=pycolmap.CameraMode.PER_IMAGE)
+    db = pycolmap.Database.open(str(tmp_path / "db.db"))
+    cams = db.read_all_cameras()
+    assert [(c.width, c.height) for c in cams] == [(160, 90)]
