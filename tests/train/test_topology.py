@@ -151,7 +151,7 @@ def _strategy(**kw):
 
 def test_densify_stop_criterion():
     """Stops when the mean L1 of the last K windows improved by less than stop_rel on the K
-    before; not while it still improves; not before 2K windows; max-vertices has its own reason;
+    before; not while it still improves; not before 2K windows; max-vertices only pauses it;
     0 disables the L1 test."""
     s = _strategy(stop_rel=0.01, stop_windows=3)
     s.l1_windows = [0.10, 0.09, 0.08, 0.07, 0.06]          # 5 < 2K windows: no test yet
@@ -178,9 +178,14 @@ def test_densify_stop_criterion():
     s.check_stop(900, 100)
     assert s.densify_stopped is not None and "within 0.01" in s.densify_stopped
 
+    # the cap pauses densification (the prunes free vertices), never stops it for good
     s = _strategy(stop_rel=0.01, max_vertices=100)
-    s.check_stop(1000, 100)
-    assert "max-vertices" in s.densify_stopped
+    assert s.check_stop(1000, 100) is False
+    assert s.densify_stopped is None and "max-vertices" in s.at_cap
+    assert s.check_stop(1500, 100) is False                  # still there: no second record
+    assert s.check_stop(2000, 60) is True and s.at_cap is None
+    assert [e["event"] for e in s.events[1:]] == ["densify_paused", "densify_resumed"]
+    assert s.events[1]["reason"] == "max-vertices reached (100 >= 100)" and s.events[2]["iteration"] == 2000
     s = _strategy(stop_rel=0.0)
     s.l1_windows = [0.05] * 12
     s.check_stop(1000, 10)

@@ -1,6 +1,6 @@
 """The densification cap (train/strategy/cap.py): the smallest of --max-vertices, the vertex budget
 (F x the mean training pixels) and what one storage binding holds; densification never passes it,
-and the densify_stop reason and log.jsonl name the bound."""
+and the pause at the cap and log.jsonl name the bound."""
 
 import math
 from dataclasses import replace
@@ -92,20 +92,27 @@ def test_densification_never_passes_the_cap(ctx, cap):
         state = replace(state, max_weight=np.ones(state.m, np.float32))
     assert state.n > 400
     if cap.triangles is None:                # splits add 1 to 3 vertices: the model may end just under the cap
-        assert state.n >= cap.vertices - 2 and s.densify_stopped is None
-        s.check_stop(4000, cap.vertices)
-        assert s.densify_stopped == "vertex budget reached (520 >= 2.0 x 260 training pixels)"
+        assert state.n >= cap.vertices - 2
+        assert s.check_stop(4000, cap.vertices) is False
+        assert s.at_cap == "vertex budget reached (520 >= 2.0 x 260 training pixels)"
     else:                                    # no room for 3 more triangles
-        assert s.densify_stopped.startswith("storage-binding limit reached (980 triangles: a split would pass 980")
-    stop = [e for e in s.events if e["event"] == "densify_stop"]
-    assert len(stop) == 1 and stop[0]["reason"] == s.densify_stopped
+        assert s.at_cap.startswith("storage-binding limit reached (980 triangles: a split would pass 980")
+    assert s.densify_stopped is None         # the cap pauses, it does not stop
+    paused = [e for e in s.events if e["event"] == "densify_paused"]
+    assert len(paused) == 1 and paused[0]["reason"] == s.at_cap
+    assert not [e for e in s.events if e["event"] == "densify_stop"]
+    # a prune that frees room lets the next densify step grow the model again, to the cap
+    small = _grid(12)                                                          # 144 vertices, 242 triangles
+    grown = s.edit(small, 4000, [], [])
+    assert grown.n > small.n and grown.n <= cap.vertices and s.at_cap is None
+    assert s.events[-2]["event"] == "densify_resumed" and s.events[-2]["iteration"] == 4000
 
 
 def test_a_plain_number_is_still_a_max_vertices_cap():
     s = TopologyStrategy(Schedule(total=30000), max_vertices=100)
     assert (s.max_vertices, s.cap.bound) == (100, "max-vertices")
     s.check_stop(1000, 100, 10**9)
-    assert s.densify_stopped == "max-vertices reached (100 >= 100)"
+    assert s.at_cap == "max-vertices reached (100 >= 100)" and s.densify_stopped is None
     assert TopologyStrategy(Schedule(total=30000), enabled=False).events == []    # topology off: nothing to log
 
 

@@ -52,7 +52,7 @@ NORMAL_TRIANGLE_BYTES = 48
 class VertexCap:
     """The densification cap: ``vertices``, the ``bound`` that sets it (``"max-vertices"``,
     ``"vertex budget"``, ``"buffer-size limit"`` or ``"storage-binding limit"``), ``detail`` (what the cap is, for the
-    densify_stop reason; default the number), ``why`` (one sentence for ``tsplus train``),
+    reason of the pause at the cap; default the number), ``why`` (one sentence for ``tsplus train``),
     ``triangles`` (the most triangles one storage binding holds; None: no bound) and ``inputs``
     (the numbers it came from, for ``log.jsonl``)."""
 
@@ -64,11 +64,11 @@ class VertexCap:
     inputs: dict = field(default_factory=dict)
 
     def reached(self, num_vertices):
-        """The densify_stop reason at ``num_vertices`` (>= the cap)."""
+        """The reason densification pauses at ``num_vertices`` (>= the cap)."""
         return f"{self.bound} reached ({num_vertices:,} >= {self.detail or f'{self.vertices:,}'})"
 
     def triangles_reached(self, num_triangles):
-        """The densify_stop reason when a split (3 more triangles) would pass ``triangles``."""
+        """The reason densification pauses when a split (3 more triangles) would pass ``triangles``."""
         return (f"storage-binding limit reached ({num_triangles:,} triangles: a split would pass {self.triangles:,}, "
                 f"the most this device's bindings and buffers hold)")
 

@@ -50,10 +50,15 @@ rather than the ~3x larger step a zero second moment gives).
 training L1 of the iterations since the previous topology step is appended to a history; at
 each densify step, with S_now the mean of the last K windows and S_prev the mean of the K before (K =
 ``densify_stop_windows``, 3), densification stops for good when the L1 is flat,
-``|S_prev - S_now| / S_prev < densify_stop_rel`` (0.01; 0 disables), or when V reached
-the cap or M has no room for one more split (the reason names the bound: max-vertices, vertex
-budget or storage-binding limit). The reason is logged (``event: densify_stop``); the cap itself
-in a first ``event: vertex_cap`` record. A *rise* of the L1 is not a plateau: the schedule
+``|S_prev - S_now| / S_prev < densify_stop_rel`` (0.01; 0 disables). The reason is logged
+(``event: densify_stop``). At the cap (V reached it, or M has no room for one more split)
+densification only *pauses*: the prunes that follow free vertices, and the next densify step
+below the cap grows the model again (``event: densify_paused`` with the bound's reason: max-vertices,
+vertex budget or storage-binding limit; ``event: densify_resumed``). The cap itself is in a first
+``event: vertex_cap`` record. Until 2026-11-28 reaching the cap stopped densifying for good: a
+run whose initial mesh (about 12 Delaunay faces a point) met the cap before the hard prune kept
+what that prune left (lund at a quarter of the default pixels, seed 1: 3,900 vertices of a
+13,490 budget). A *rise* of the L1 is not a plateau: the schedule
 causes it (a prune, sigma falling, the opacity floor rising), not the model's size. Until
 2026-11-27 a rise stopped densifying too; on office's default CPU run it fired at iteration
 710, on a 9 % rise across the second prune, at 44,663 vertices; growing on to the vertex
@@ -113,6 +118,7 @@ class TopologyStrategy:
         self.l1_windows = []           # mean training L1 per topology window
         self.last_read = 0             # iteration of the last ring read
         self.densify_stopped = None    # reason, once stopped
+        self.at_cap = None             # the cap's reason while densification is paused at it
         self.events = [self.cap.record()] if self.enabled else []   # log records not yet written
         self.kernel = None
         self.ctx = None
@@ -141,7 +147,7 @@ class TopologyStrategy:
     def state(self):
         """The host-side state for checkpoints (JSON)."""
         return dict(seen=sorted(int(v) for v in self.seen), l1_windows=list(self.l1_windows),
-                    last_read=self.last_read, densify_stopped=self.densify_stopped)
+                    last_read=self.last_read, densify_stopped=self.densify_stopped, at_cap=self.at_cap)
 
     def load_state(self, state, ring=None):
         """Continue from :meth:`state` and the checkpoint's L1 ring (after :meth:`attach`)."""
@@ -149,6 +155,7 @@ class TopologyStrategy:
         self.l1_windows = list(state.get("l1_windows", []))
         self.last_read = int(state.get("last_read", 0))
         self.densify_stopped = state.get("densify_stopped")
+        self.at_cap = state.get("at_cap")
         if ring is not None:
             self.ctx.queue.write_buffer(self.ring, 0, np.asarray(ring, np.float32).tobytes())
 
@@ -180,16 +187,13 @@ class TopologyStrategy:
         self.last_read = it
 
     def check_stop(self, it, num_vertices, num_triangles=0):
-        """Stop densifying for good when the cap is reached (vertices, or triangles: no room for
-        one more split) or the training L1 stopped improving."""
+        """Stop densifying for good when the training L1 stopped improving; pause while the
+        model is at the cap (vertices, or triangles: no room for one more split). Returns True
+        when densification may go on at ``it``."""
         if self.densify_stopped is not None:
-            return
+            return False
         k = self.stop_windows
-        if num_vertices >= self.max_vertices:
-            self.densify_stopped = self.cap.reached(num_vertices)
-        elif self.cap.triangles is not None and num_triangles + 3 > self.cap.triangles:
-            self.densify_stopped = self.cap.triangles_reached(num_triangles)
-        elif self.stop_rel > 0 and k > 0 and len(self.l1_windows) >= 2 * k:
+        if self.stop_rel > 0 and k > 0 and len(self.l1_windows) >= 2 * k:
             prev = float(np.mean(self.l1_windows[-2 * k:-k]))
             now = float(np.mean(self.l1_windows[-k:]))
             rel = (prev - now) / max(prev, 1e-12)
@@ -199,6 +203,17 @@ class TopologyStrategy:
         if self.densify_stopped is not None:
             self.events.append(dict(iteration=it, event="densify_stop", reason=self.densify_stopped,
                                     vertices=int(num_vertices)))
+            return False
+        at_cap = None
+        if num_vertices >= self.max_vertices:
+            at_cap = self.cap.reached(num_vertices)
+        elif self.cap.triangles is not None and num_triangles + 3 > self.cap.triangles:
+            at_cap = self.cap.triangles_reached(num_triangles)
+        if (at_cap is None) != (self.at_cap is None):
+            self.events.append(dict(iteration=it, event="densify_paused" if at_cap else "densify_resumed",
+                                    vertices=int(num_vertices), **({"reason": at_cap} if at_cap else {})))
+        self.at_cap = at_cap
+        return at_cap is None
 
     # -------------------------------------------------------------- the edit
     def edit(self, state, it, train_views, cameras):
@@ -216,8 +231,7 @@ class TopologyStrategy:
         else:
             state = ops.remove_unused(state)
         if s.is_densify_step(it):
-            self.check_stop(it, state.n, state.m)
-            if self.densify_stopped is None:
+            if self.check_stop(it, state.n, state.m):
                 state = self.densify(state, it, rec)
         if reset:
             state = replace(state, max_weight=np.zeros(state.m, np.float32))
