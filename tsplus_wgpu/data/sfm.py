@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SceneError
+from .guided import add_guided_matches
 from .images import IMAGE_EXTENSIONS, read_image_size, write_image
 from .tracks import check as check_tracks
 from .tracks import of_pycolmap_points as tracks_of_points
@@ -37,8 +38,14 @@ from .tracks import of_pycolmap_points as tracks_of_points
 TRIANGULATION_MIN_ANGLE = 1.0
 
 #: the recipe's version in every cache key: results of an older recipe are not reused
-#: (v3: pycolmap on one thread, deterministic)
-RECIPE = "v3"
+#: (v3: pycolmap on one thread, deterministic; v4: matches guided by the known poses added)
+RECIPE = "v4"
+#: the photo folder's SfM recipe (unchanged by v4, which only adds matches for posed images)
+SFM_RECIPE = "v3"
+
+#: each posed image is also matched along the known epipolar lines (:mod:`.guided`) with this many
+#: of its nearest cameras
+GUIDED_NEIGHBOURS = 6
 
 
 def sfm_threads() -> int:
@@ -147,7 +154,7 @@ def file_digest(path) -> str:
 
 def _fingerprint(paths) -> str:
     """Content key of image files: their names and bytes (:func:`file_digest`), and the recipe."""
-    h = hashlib.sha1(f"{RECIPE}|".encode())
+    h = hashlib.sha1(f"{SFM_RECIPE}|".encode())
     for p in paths:
         h.update(f"{Path(p).name}|{file_digest(p)}\n".encode())
     return h.hexdigest()
@@ -403,15 +410,18 @@ def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaus
     """Features, matches and pycolmap's point triangulator on the PNGs ``work/images/<safe>``."""
     img_dir = work / "images"
     db = work / "database.db"
-    prog = _Progress(progress, 3, f"triangulating points from {len(safe)} posed images")
+    prog = _Progress(progress, 4, f"triangulating points from {len(safe)} posed images")
     try:
         pairs = None if len(safe) <= exhaustive_max else _neighbour_pairs(cameras, safe)
         prog.stage("extracting SIFT features", 0)
         _extract_and_match(pycolmap, db, img_dir, safe, pycolmap.CameraMode.PER_IMAGE, "PINHOLE",
                            pairs=pairs, max_image_size=max_image_size, progress=prog,
                            small_images=max(cameras[0].width, cameras[0].height) < 1200)
-        prog.stage("triangulating")
         rec = _posed_reconstruction(pycolmap, db, cameras, safe)
+        prog.stage("matching along the known epipolar lines")
+        add_guided_matches(pycolmap, db, rec, _neighbour_pairs(cameras, safe, k=GUIDED_NEIGHBOURS),
+                           on_pair=lambda k, n: prog.note(f"matching along the known epipolar lines: pair {k}/{n}"))
+        prog.stage("triangulating")
         out = work / "sparse"
         out.mkdir(exist_ok=True)
         opts = pycolmap.IncrementalPipelineOptions()
