@@ -5,25 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from scenes import look_at_camera
 from tsplus_wgpu.data import guided
 
 
-def _camera(center, look_at, f=500.0, size=(640, 480)):
-    z = np.asarray(look_at, float) - center
-    z /= np.linalg.norm(z)
-    x = np.cross([0.0, 1.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    T = np.c_[R, -R @ center]
-    K = np.array([[f, 0, size[0] / 2], [0, f, size[1] / 2], [0, 0, 1.0]])
-    return K, T
-
-
-def _project(K, T, X):
-    c = X @ T[:, :3].T + T[:, 3]
-    p = c @ K.T
-    return p[:, :2] / p[:, 2:3]
+def _kt(cam):
+    """Intrinsics and 3x4 world-to-camera transform of a Camera."""
+    K = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1.0]])
+    return K, cam.world_to_camera[:3]
 
 
 def _twin(xy1, xy2, desc1, desc2, F, max_px, ratio, max_angle):
@@ -59,11 +48,12 @@ def _twin(xy1, xy2, desc1, desc2, F, max_px, ratio, max_angle):
 def _scene(rng, n_true=40, n_clutter=25):
     """Two posed cameras, features of n_true shared 3D points (noisy descriptors of one source),
     and clutter: features whose descriptors copy a true one (repeated structure) elsewhere."""
-    K1, T1 = _camera(np.array([0.0, 0, 0]), [0, 0, 5])
-    K2, T2 = _camera(np.array([0.8, 0.1, 0.3]), [0, 0, 5])
+    c1 = look_at_camera(640, 480, fov_deg=65.0, eye=(0.0, 0, 0), target=(0, 0, 5))
+    c2 = look_at_camera(640, 480, fov_deg=65.0, eye=(0.8, 0.1, 0.3), target=(0, 0, 5))
+    (K1, T1), (K2, T2) = _kt(c1), _kt(c2)
     X = rng.uniform([-2, -1.5, 3.5], [2, 1.5, 7], (n_true, 3))
-    xy1 = _project(K1, T1, X) + rng.normal(0, 0.2, (n_true, 2))
-    xy2 = _project(K2, T2, X) + rng.normal(0, 0.2, (n_true, 2))
+    xy1 = c1.project(X)[0] + rng.normal(0, 0.2, (n_true, 2))
+    xy2 = c2.project(X)[0] + rng.normal(0, 0.2, (n_true, 2))
     base = rng.integers(0, 120, (n_true, 128))
     d1 = np.clip(base + rng.integers(-4, 5, base.shape), 0, 255)
     d2 = np.clip(base + rng.integers(-4, 5, base.shape), 0, 255)

@@ -55,7 +55,7 @@ def fundamental(K1, T1, K2, T2) -> np.ndarray:
 
 def _lines(F, h):
     """Normalised lines ``F x`` of the points ``h`` [M,3], term by term (see :func:`_line_dist`)."""
-    out = np.stack([F[k, 0] * h[:, 0] + F[k, 1] * h[:, 1] + F[k, 2] * h[:, 2] for k in range(3)], axis=1)
+    out = np.stack([_line_dist(np.broadcast_to(F[k], h.shape), h) for k in range(3)], axis=1)
     return out / np.maximum(np.hypot(out[:, 0], out[:, 1]), 1e-300)[:, None]
 
 
