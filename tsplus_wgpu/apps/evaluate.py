@@ -32,6 +32,11 @@ def heat(err, vmax=None):
     return np.clip(np.concatenate([3 * t, 3 * t - 1, 3 * t - 2], axis=-1), 0.0, 1.0)
 
 
+def view_image_name(view):
+    """The file name of a held-out view's ground truth | render | error image in an eval folder."""
+    return f"view_{int(view):03d}.png"
+
+
 def evaluate_mesh(model, scene, views, mesh_renderer, supersample=4, splat_renderer=None, out=None, images=4,
                   background=(0.0, 0.0, 0.0), interpolation="perspective", near=None, renders=None):
     """Per-view PSNR/SSIM of ``model`` (opaque, vertex colours) drawn by the mesh renderer,
@@ -64,7 +69,7 @@ def evaluate_mesh(model, scene, views, mesh_renderer, supersample=4, splat_rende
             renders.append(img)
         if out is not None and n < images:
             err = np.abs(np.asarray(img, np.float64) - gt).mean(-1)
-            write_image(Path(out) / f"view_{v:03d}.png", np.concatenate([gt, img, heat(err)], axis=1))
+            write_image(Path(out) / view_image_name(v), np.concatenate([gt, img, heat(err)], axis=1))
     return rows
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..apps.evaluate import view_image_name
 from .plots import _plt, _save
 
 
@@ -38,7 +39,7 @@ def load_eval(folder):
 def panels(folder, view):
     """``(ground truth, render)`` of ``view`` from ``folder/view_NNN.png`` (three equal panels)."""
     import imageio.v3 as iio
-    path = Path(folder) / f"view_{view:03d}.png"
+    path = Path(folder) / view_image_name(view)
     if not path.is_file():
         raise ValueError(f"{path}: not found; `tsplus eval --write-images N` writes the first N held-out views")
     img = np.asarray(iio.imread(path))[..., :3]
@@ -68,8 +69,7 @@ def compare_figure(rows, out, view=None):
     summary, adapters = [], set()
     for r, (scene, meshes) in enumerate(rows):
         evals = [(label, folder, *load_eval(folder)) for label, folder in meshes]
-        written = set.intersection(*[{int(p.stem[5:]) for p in Path(f).glob("view_[0-9][0-9][0-9].png")}
-                                     for _, f, *_ in evals])
+        written = {v for v in evals[-1][2] if all((Path(f) / view_image_name(v)).is_file() for _, f, *_ in evals)}
         v = typical_view(evals[-1][2], evals[-1][3], written) if view is None else int(view)
         gt, _ = panels(evals[0][1], v)
         axes[r][0].imshow(gt)
