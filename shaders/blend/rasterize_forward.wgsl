@@ -1,7 +1,15 @@
-// Forward blend: one workgroup of 16 invocations per 16x16 tile; each invocation blends
-// the 16 pixels of one column, as four groups of 4 held in the lanes of vec4s, so every
-// triangle record read from workgroup memory serves 16 pixels. Triangles of the tile arrive in depth order in
-// batches of 128 staged in workgroup memory.
+// Forward blend: one workgroup of 8 invocations per 16x16 tile; invocation i blends the 32
+// pixels of columns i and i + 8, as eight groups of 4 held in the lanes of vec4s, so every
+// triangle record read from workgroup memory serves 32 pixels. Triangles of the tile arrive
+// in depth order in batches of 128 staged in workgroup memory.
+//
+// Why 8 x 32 (llvmpipe, Mesa 22.3; docs/measurements.md, "The forward blend's shape on
+// llvmpipe"): a pair costs mostly what is paid once per trip of the pair loop (its record's
+// loads, the branch on any pixel being live, the loop), not per pixel, and 8 invocations are
+// one SIMD row of llvmpipe's 8 lanes instead of two. The same blend with 16 invocations of
+// one column was 10-13 % slower per forward on the shared scenes' initial meshes; 4 of four
+// columns slower again (and 50 s to compile); skipping rows a triangle misses, in four
+// loops, 25 % slower.
 //   I = max(0, min_k e_k(p))^sigma, alpha = min(0.99, o I), skip alpha < 1/255,
 //   stop before T would fall below 1e-4; C += c(p) alpha T; T *= 1 - alpha.
 // Outputs the image (C + T background), final T, per pixel (x) the number of pairs of
@@ -44,7 +52,7 @@ override TRIANGLE_IDS: bool = false;   // the triangle-ID pass instead of the im
 const BATCH: u32 = 128u;
 const STOPPED: u32 = 0x80000000u;
 const NONE: u32 = 0xFFFFFFFFu;     // triangle ID where no triangle contributes
-const THREADS: u32 = 16u;          // one invocation per column of the tile: 16 pixels, 4 groups of 4
+const THREADS: u32 = 8u;           // one invocation per two columns of the tile (li, li + 8): 32 pixels
 // Pairs per tile that one dispatch blends at most: each pair costs one trip of the blend
 // loop, each batch 1 + 2 * BATCH / THREADS more, within lavapipe's 65535 (frame.wgsl).
 const PASS_PAIRS: u32 = 256u * BATCH;
@@ -130,49 +138,51 @@ fn visit4(q: ptr<function, Px4>, live: vec4<bool>, ratio: vec4<f32>, opacity: f3
 
 @compute @workgroup_size(THREADS)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    let px = wid.x * TILE + li;
     let row0 = wid.y * TILE;
     let tile = wid.y * params.tiles_x + wid.x;
     let range = ranges[tile];
     if (range.x < pass_.pair_lo || range.x >= pass_.pair_hi) {   // another window's tile (uniform)
         return;
     }
-    let x = f32(px) + 0.5;
+    let xa = f32(wid.x * TILE + li) + 0.5;
+    let xb = xa + 8.0;
     let sigma = params.sigma;
 
-    var q: array<Px4, 4>;
+    // q[4c + g]: column c (li, li + 8), rows 4g..4g+3
+    var q: array<Px4, 8>;
     var ndone = 0u;
-    for (var g = 0u; g < 4u; g++) {
-        let py = vec4<u32>(row0 + 4u * g) + vec4<u32>(0u, 1u, 2u, 3u);
+    for (var i = 0u; i < 8u; i++) {
+        let px = wid.x * TILE + li + 8u * (i / 4u);
+        let py = vec4<u32>(row0 + 4u * (i % 4u)) + vec4<u32>(0u, 1u, 2u, 3u);
         let inside = (py < vec4<u32>(params.height)) & vec4<bool>(px < params.width);
-        q[g].y = vec4<f32>(py) + 0.5;
-        q[g].T = vec4<f32>(1.0);
-        q[g].done = !inside;
+        q[i].y = vec4<f32>(py) + 0.5;
+        q[i].T = vec4<f32>(1.0);
+        q[i].done = !inside;
         if (TRIANGLE_IDS) {
-            q[g].best_w = vec4<f32>(0.0);
-            q[g].best = vec4<u32>(NONE);
+            q[i].best_w = vec4<f32>(0.0);
+            q[i].best = vec4<u32>(NONE);
         }
         if (pass_.first == 0u) {
             for (var k = 0u; k < 4u; k++) {
                 if (inside[k]) {
                     let pix = py[k] * params.width + px;
                     let st = n_contrib[pix];
-                    q[g].T[k] = final_t[pix];
-                    q[g].done[k] = (st.y & STOPPED) != 0u;
+                    q[i].T[k] = final_t[pix];
+                    q[i].done[k] = (st.y & STOPPED) != 0u;
                     if (TRIANGLE_IDS) {
-                        q[g].best[k] = st.x;
-                        q[g].best_w[k] = bitcast<f32>(st.y & ~STOPPED);
+                        q[i].best[k] = st.x;
+                        q[i].best_w[k] = bitcast<f32>(st.y & ~STOPPED);
                     } else {
-                        q[g].cr[k] = image[3u * pix];
-                        q[g].cg[k] = image[3u * pix + 1u];
-                        q[g].cb[k] = image[3u * pix + 2u];
-                        q[g].last[k] = st.x;
-                        q[g].evaluated[k] = st.y & ~STOPPED;
+                        q[i].cr[k] = image[3u * pix];
+                        q[i].cg[k] = image[3u * pix + 1u];
+                        q[i].cb[k] = image[3u * pix + 2u];
+                        q[i].last[k] = st.x;
+                        q[i].evaluated[k] = st.y & ~STOPPED;
                     }
                 }
             }
         }
-        ndone += dot(select(vec4<u32>(0u), vec4<u32>(1u), q[g].done), vec4<u32>(1u));
+        ndone += dot(select(vec4<u32>(0u), vec4<u32>(1u), q[i].done), vec4<u32>(1u));
     }
     if (li == 0u) {
         atomicStore(&num_done, 0u);
@@ -185,6 +195,10 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     var q1 = q[1];
     var q2 = q[2];
     var q3 = q[3];
+    var q4 = q[4];
+    var q5 = q[5];
+    var q6 = q[6];
+    var q7 = q[7];
     let lo = min(range.x + pass_.begin, range.y);
     let hi = min(range.x + pass_.end, range.y);
     let num_batches = (hi - lo + BATCH - 1u) / BATCH;
@@ -217,21 +231,31 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
             let w0 = staged[6u * j];
             let w1 = staged[6u * j + 1u];
             let w2 = staged[6u * j + 2u];
-            let dx = x - w0.x;
-            let a = vec3<f32>(1.0 + w1.x * dx, 1.0 + w1.z * dx, 1.0 + w2.x * dx);
+            let dxa = xa - w0.x;
+            let dxb = xb - w0.x;
+            let aa = vec3<f32>(1.0 + w1.x * dxa, 1.0 + w1.z * dxa, 1.0 + w2.x * dxa);
+            let ab = vec3<f32>(1.0 + w1.x * dxb, 1.0 + w1.z * dxb, 1.0 + w2.x * dxb);
             let gy = vec3<f32>(w1.y, w1.w, w2.y);
             let tau = vec4<f32>(w0.w);
             let zero = vec4<f32>(0.0);
             // ratio < tau means alpha < 1/255: no power needed
-            let r0 = ratio4(q0.y - w0.y, a, gy);
-            let r1 = ratio4(q1.y - w0.y, a, gy);
-            let r2 = ratio4(q2.y - w0.y, a, gy);
-            let r3 = ratio4(q3.y - w0.y, a, gy);
+            let r0 = ratio4(q0.y - w0.y, aa, gy);
+            let r1 = ratio4(q1.y - w0.y, aa, gy);
+            let r2 = ratio4(q2.y - w0.y, aa, gy);
+            let r3 = ratio4(q3.y - w0.y, aa, gy);
+            let r4 = ratio4(q4.y - w0.y, ab, gy);
+            let r5 = ratio4(q5.y - w0.y, ab, gy);
+            let r6 = ratio4(q6.y - w0.y, ab, gy);
+            let r7 = ratio4(q7.y - w0.y, ab, gy);
             let l0 = !q0.done & (r0 > zero) & (r0 >= tau);
             let l1 = !q1.done & (r1 > zero) & (r1 >= tau);
             let l2 = !q2.done & (r2 > zero) & (r2 >= tau);
             let l3 = !q3.done & (r3 > zero) & (r3 >= tau);
-            if (any(l0 | l1 | l2 | l3)) {
+            let l4 = !q4.done & (r4 > zero) & (r4 >= tau);
+            let l5 = !q5.done & (r5 > zero) & (r5 >= tau);
+            let l6 = !q6.done & (r6 > zero) & (r6 >= tau);
+            let l7 = !q7.done & (r7 > zero) & (r7 >= tau);
+            if (any(l0 | l1 | l2 | l3 | l4 | l5 | l6 | l7)) {
                 // TRIANGLE_IDS is a pipeline constant: the compiler keeps one branch
                 if (TRIANGLE_IDS) {
                     let id = batch_ids[j];
@@ -239,15 +263,24 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
                     visit4(&q1, l1, r1, w0.z, sigma, id);
                     visit4(&q2, l2, r2, w0.z, sigma, id);
                     visit4(&q3, l3, r3, w0.z, sigma, id);
+                    visit4(&q4, l4, r4, w0.z, sigma, id);
+                    visit4(&q5, l5, r5, w0.z, sigma, id);
+                    visit4(&q6, l6, r6, w0.z, sigma, id);
+                    visit4(&q7, l7, r7, w0.z, sigma, id);
                 } else {
                     let c0 = staged[6u * j + 3u];
                     let cx = staged[6u * j + 4u];
                     let cy = staged[6u * j + 5u];
                     let index = first - range.x + j + 1u;
-                    let wmax = max(max(blend4(&q0, l0, r0, w0.z, c0, cx, cy, dx, sigma, index),
-                                       blend4(&q1, l1, r1, w0.z, c0, cx, cy, dx, sigma, index)),
-                                   max(blend4(&q2, l2, r2, w0.z, c0, cx, cy, dx, sigma, index),
-                                       blend4(&q3, l3, r3, w0.z, c0, cx, cy, dx, sigma, index)));
+                    let wa = max(max(blend4(&q0, l0, r0, w0.z, c0, cx, cy, dxa, sigma, index),
+                                     blend4(&q1, l1, r1, w0.z, c0, cx, cy, dxa, sigma, index)),
+                                 max(blend4(&q2, l2, r2, w0.z, c0, cx, cy, dxa, sigma, index),
+                                     blend4(&q3, l3, r3, w0.z, c0, cx, cy, dxa, sigma, index)));
+                    let wb = max(max(blend4(&q4, l4, r4, w0.z, c0, cx, cy, dxb, sigma, index),
+                                     blend4(&q5, l5, r5, w0.z, c0, cx, cy, dxb, sigma, index)),
+                                 max(blend4(&q6, l6, r6, w0.z, c0, cx, cy, dxb, sigma, index),
+                                     blend4(&q7, l7, r7, w0.z, c0, cx, cy, dxb, sigma, index)));
+                    let wmax = max(wa, wb);
                     if (wmax > 0.0) {
                         atomicMax(&batch_maxw[j], bitcast<u32>(wmax));
                     }
@@ -268,35 +301,46 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     q1.evaluated = select(q1.evaluated, visited, !q1.done);
     q2.evaluated = select(q2.evaluated, visited, !q2.done);
     q3.evaluated = select(q3.evaluated, visited, !q3.done);
+    q4.evaluated = select(q4.evaluated, visited, !q4.done);
+    q5.evaluated = select(q5.evaluated, visited, !q5.done);
+    q6.evaluated = select(q6.evaluated, visited, !q6.done);
+    q7.evaluated = select(q7.evaluated, visited, !q7.done);
     q[0] = q0;
     q[1] = q1;
     q[2] = q2;
     q[3] = q3;
+    q[4] = q4;
+    q[5] = q5;
+    q[6] = q6;
+    q[7] = q7;
     // One output loop for both variants (a helper function taking q by value made the ID
     // pass twice as slow on lavapipe).
     if (!TRIANGLE_IDS) {
         let one = vec4<u32>(1u);
-        atomicAdd(&work[0], dot(q0.powered + q1.powered + q2.powered + q3.powered, one));
-        atomicAdd(&work[1], dot(q0.added + q1.added + q2.added + q3.added, one));
+        atomicAdd(&work[0], dot(q0.powered + q1.powered + q2.powered + q3.powered
+                                + q4.powered + q5.powered + q6.powered + q7.powered, one));
+        atomicAdd(&work[1], dot(q0.added + q1.added + q2.added + q3.added
+                                + q4.added + q5.added + q6.added + q7.added, one));
     }
-    for (var g = 0u; g < 4u; g++) {
+    for (var i = 0u; i < 8u; i++) {
+        let px = wid.x * TILE + li + 8u * (i / 4u);
         for (var k = 0u; k < 4u; k++) {
-            let py = row0 + 4u * g + k;
+            let py = row0 + 4u * (i % 4u) + k;
             if (py < params.height && px < params.width) {
                 let pix = py * params.width + px;
-                let flags = select(0u, STOPPED, pass_.last == 0u && q[g].done[k]);
-                final_t[pix] = q[g].T[k];
+                let flags = select(0u, STOPPED, pass_.last == 0u && q[i].done[k]);
+                final_t[pix] = q[i].T[k];
                 if (TRIANGLE_IDS) {
-                    n_contrib[pix] = vec2<u32>(q[g].best[k], bitcast<u32>(q[g].best_w[k]) | flags);
+                    n_contrib[pix] = vec2<u32>(q[i].best[k], bitcast<u32>(q[i].best_w[k]) | flags);
                 } else {
-                    var out = vec3<f32>(q[g].cr[k], q[g].cg[k], q[g].cb[k]);
+                    var out = vec3<f32>(q[i].cr[k], q[i].cg[k], q[i].cb[k]);
                     if (pass_.last != 0u) {
-                        out += q[g].T[k] * params.background.xyz;
+                        out += q[i].T[k] * params.background.xyz;
                     }
                     image[3u * pix] = out.x;
                     image[3u * pix + 1u] = out.y;
                     image[3u * pix + 2u] = out.z;
-                    n_contrib[pix] = vec2<u32>(q[g].last[k], q[g].evaluated[k] | flags);
+                    n_contrib[pix] = vec2<u32>(q[i].last[k], q[i].evaluated[k] | flags);
                 }
             }
         }

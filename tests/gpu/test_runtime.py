@@ -281,7 +281,8 @@ def test_kernel_layout_follows_the_adapter_type_and_is_overridable(ctx, monkeypa
         gpu.GpuContext(ctx.adapter, layout="pixels")
     assert kernel_layout(ctx).startswith(ctx.layout + " (")
     column, pixel = "16 invocations a 16x16 tile, 16 px each", "256 invocations a 16x16 tile, 1 px each"
-    for name, (fwd, bwd) in {"cpu": (column, column), "gpu": (pixel, column), "pixel": (pixel, pixel)}.items():
+    columns = "8 invocations a 16x16 tile, 32 px each"      # the forward's column kernel: two columns each
+    for name, (fwd, bwd) in {"cpu": (columns, column), "gpu": (pixel, column), "pixel": (pixel, pixel)}.items():
         assert kernel_layout(gpu.GpuContext(ctx.adapter, layout=name)) == f"{name} (forward {fwd}; backward {bwd})"
     from tsplus_wgpu.cli.adapters import LAYOUT_NAMES
     assert LAYOUT_NAMES == gpu.LAYOUTS       # --help names them without importing wgpu

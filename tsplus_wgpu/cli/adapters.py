@@ -22,10 +22,11 @@ LAYOUT_NAMES = ("cpu", "gpu", "pixel")
 def add_layout_arg(p):
     """The ``--layout`` option of the benchmarks: the blend kernels' layout."""
     p.add_argument("--layout", default=None, choices=LAYOUT_NAMES,
-                   help="the blend kernels' layout: cpu (16 invocations a 16x16 tile, a column of 16 pixels each, "
-                        "in both passes), gpu (one invocation a pixel in the forward, the column backward: the "
-                        "faster pair on an NVIDIA H100) or pixel (one invocation a pixel in both); default: "
-                        "TSPLUS_LAYOUT or the adapter's type (cpu on a CPU adapter such as lavapipe, else gpu)")
+                   help="the blend kernels' layout: cpu (the column kernels: in the forward 8 invocations a "
+                        "16x16 tile, two columns of 16 pixels each, in the backward 16, one column each), gpu (one "
+                        "invocation a pixel in the forward, the column backward: the faster pair on an NVIDIA H100) "
+                        "or pixel (one invocation a pixel in both); default: TSPLUS_LAYOUT or the adapter's type "
+                        "(cpu on a CPU adapter such as lavapipe, else gpu)")
 
 
 def layout_renderer(args):
