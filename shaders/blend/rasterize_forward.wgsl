@@ -5,8 +5,8 @@
 //
 // Why 8 x 32 (llvmpipe, Mesa 22.3; docs/measurements.md, "The forward blend's shape on
 // llvmpipe"): a pair costs mostly what is paid once per trip of the pair loop (its record's
-// loads, the branch on any pixel being live, the loop), not per pixel, and 8 invocations are
-// one SIMD row of llvmpipe's 8 lanes instead of two. The same blend with 16 invocations of
+// loads, the branch on any pixel being live, the loop), not per pixel, and 8 invocations
+// presumably fill one row of llvmpipe's 8 float lanes instead of two. The same blend with 16 invocations of
 // one column was 10-13 % slower per forward on the shared scenes' initial meshes; 4 of four
 // columns slower again (and 50 s to compile); skipping rows a triangle misses, in four
 // loops, 25 % slower.
