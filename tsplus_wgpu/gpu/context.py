@@ -180,8 +180,9 @@ class GpuContext:
         poison: fill every new scratch/output buffer with 0xFF bytes (NaN as float, 2^32-1
             as u32) to catch kernels that rely on zero-initialised memory; also on with
             ``TSPLUS_POISON=1``. For tests and debugging.
-        layout: the blend kernels' layout (:data:`LAYOUT_KERNELS`): ``"cpu"`` (16 invocations a
-            tile, 16 pixels each, for CPU drivers), ``"gpu"`` (one invocation a pixel in the
+        layout: the blend kernels' layout (:data:`LAYOUT_KERNELS`): ``"cpu"`` (the column kernels
+            for CPU drivers: 8 invocations a tile of two 16-pixel columns each in the forward, 16
+            of one column in the backward), ``"gpu"`` (one invocation a pixel in the
             forward, the column backward) or ``"pixel"`` (one invocation a pixel in both);
             default ``TSPLUS_LAYOUT`` or, unset, the adapter's class (``"cpu"`` on a CPU adapter).
     """
