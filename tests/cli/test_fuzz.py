@@ -9,7 +9,7 @@ process. Each case expects one of:
 - ``either``: one of the two (the issue allows a warning or an error, never silence).
 
 The table is in fuzz_cases.py. The cases run in parallel, each in its own process forked from one
-that imported the package once (tests/cli/fuzz_server.py; module fixture ``results``). Also here:
+that imported the package once (tests/cli/fuzz_server.py; fixture ``results``, once a session). Also here:
 export, view --screenshot and select on a full disk (a small tmpfs; root only). The SIGTERM,
 read-only and train/eval disk-full tests are in tests/cli/test_run_safety.py."""
 
@@ -84,7 +84,10 @@ def _build_bases(base: Path, env):
                                                               "empty", "meshes", "masks", "run")})
 
 
-@pytest.fixture(scope="module")
+# Session-scoped, not module-scoped: under pytest-xdist's --dist loadgroup a worker may run another
+# module's test between two fuzz cases, and a module fixture would then be torn down and every case
+# run again (the suite at -n 2 --dist loadgroup ran ``results`` twice, 99 s and 87 s).
+@pytest.fixture(scope="session")
 def bases(tmp_path_factory):
     root = tmp_path_factory.mktemp("fuzz")
     return _build_bases(root / "base", cli_env(root / "cache"))
@@ -103,13 +106,14 @@ def _prepare(case, k, ctx):
     return d, out, argv
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def results(request):
     """Every selected case run once, in parallel forked children of tests/cli/fuzz_server.py:
     case id -> result (``proc``: returncode, stdout, stderr)."""
     main_argv = getattr(request.config, "workerinput", {}).get("mainargv") or []   # a worker's own option is "no"
-    if os.environ.get("PYTEST_XDIST_WORKER") and not any(a.split("=")[-1] == "loadgroup" for a in main_argv):
-        pytest.skip("under pytest-xdist every worker would run every fuzz case: add --dist loadgroup")
+    if os.environ.get("PYTEST_XDIST_WORKER") and not any(a.split("=")[-1] in ("loadgroup", "loadfile")
+                                                         for a in main_argv):
+        pytest.skip("under pytest-xdist every worker would run every fuzz case: add --dist loadfile (or loadgroup)")
     bases = request.getfixturevalue("bases")
     wanted = {item.callspec.params["case"].id for item in request.session.items
               if getattr(item, "originalname", None) == "test_fuzz" and Path(str(item.fspath)) == Path(__file__)}
@@ -176,8 +180,9 @@ def _warn_problem(r, names):
     return None
 
 
-#: every case on one pytest-xdist worker (with ``--dist loadgroup``): ``results`` runs every selected case once
-#: per process, so twelve workers would run all of them twelve times over
+#: every case on one pytest-xdist worker (with ``--dist loadgroup``; ``loadfile``, ci/test.sh's, keeps the
+#: whole file on one anyway): ``results`` runs every selected case once per process, so twelve workers
+#: would run all of them twelve times over
 ONE_WORKER = pytest.mark.xdist_group("fuzz")
 
 
@@ -270,6 +275,7 @@ def _complete_files(folder: Path):
             Image.open(f).load()
 
 
+@ONE_WORKER      # it shares ``bases`` with the fuzz cases: one worker builds them
 def test_disk_full_leaves_nothing_at_the_target(bases, tmp_path):
     """export, view --screenshot and select on a full disk: one line, nothing at the target path,
     no temporary file (train and eval on a full disk and a read-only --out: tests/cli/test_run_safety.py)."""
