@@ -3,7 +3,7 @@
 # when there is no GPU). Extra arguments go to pytest.
 # Two pytest-xdist workers by default (TSPLUS_TEST_WORKERS=N for N, 1 for one process): the
 # tests spend about half their time in Python between dispatches, so on 2 cores two workers
-# took 836 s where one took 1,188 (docs/testing.md).
+# took 755 s where one took 1,188 (docs/testing.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash ci/setup.sh
