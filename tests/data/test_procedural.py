@@ -58,9 +58,8 @@ def test_several_objects_visible(tiny):
 
 
 def test_points_reproject_onto_their_pixels(tiny):
-    """Noise-free surface points project where the rendered depth, object id and colour agree."""
+    """Noise-free surface points project where the rendered depth and colour agree."""
     sc = tiny
-    V, F, fobj = sc.gt_mesh.vertices, sc.gt_mesh.faces, sc.gt_mesh.face_object
     checked = 0
     for cam, dep, img in zip(sc.cameras, sc.depths, sc.images):
         xc = sc.points @ cam.R.T + cam.t

@@ -327,7 +327,7 @@ def test_training_with_normals_resumes_bit_identically(renderer, tiny, tiny_maps
     maps = _train_maps(tiny, tiny_maps)
     cfg = TrainConfig(iterations=24, quick=True, seed=3, log_every=5)     # topology on: the mesh changes
     full = Trainer(tiny, cfg, renderer=renderer, normals=maps).train(out_dir=tmp_path / "a", progress=False)
-    part = Trainer(tiny, cfg, renderer=renderer, normals=maps).train(out_dir=tmp_path / "b", progress=False, until=11)
+    Trainer(tiny, cfg, renderer=renderer, normals=maps).train(out_dir=tmp_path / "b", progress=False, until=11)
     resumed = Trainer.resume(tmp_path / "b" / "checkpoint.npz", tiny, renderer=renderer, normals=maps)
     resumed.train(progress=False)
     a, b = full.state_arrays(), resumed.state_arrays()

@@ -83,7 +83,7 @@ def test_trainer_topology_edits_keep_mesh_valid_and_adam_rows(renderer, tiny):
         t.step()
     before = t.state_arrays()
     n0 = t.n
-    rec = t.step()  # iteration 10: densify
+    t.step()  # iteration 10: densify
     assert t.iteration == 10 and t.sched.is_densify_step(10)
     ev = t.topology.events[-1]
     assert ev["event"] == "topology" and ev["split"] > 0 and t.n <= 1600
