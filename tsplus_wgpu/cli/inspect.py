@@ -14,7 +14,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Register the ``inspect`` sub-command on an argparse ``subparsers`` object."""
     p = subparsers.add_parser(
         "inspect", help="load a scene and print its format, cameras, images, points, split and warnings",
-        description="Load a scene (COLMAP, transforms.json, LLFF, a folder of photos, or 'procedural') "
+        description="Load a scene (COLMAP, transforms.json, LLFF, a folder of photos, a video, or 'procedural') "
                     "and print what was found. Data problems are reported in one line (exit status 2).")
     _add_arguments(p)
     p.set_defaults(func=run)
@@ -23,7 +23,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def _add_arguments(p):
     p.add_argument("scene", nargs="?", default="procedural",
-                   help="scene folder, or 'procedural[:tiny|small|demo]' (default: procedural)")
+                   help="scene folder, a video file, or 'procedural[:tiny|small|demo]' (default: procedural)")
     p.add_argument("--images", default=None, help="image folder name inside the scene (default: images)")
     p.add_argument("--downscale", type=float, default=1.0, help="shrink images by this factor (default 1)")
     p.add_argument("--background", default=None,

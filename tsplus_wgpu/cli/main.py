@@ -17,6 +17,7 @@ examples:
   tsplus bench-raster --json out/raster.json
   tsplus adapters                       list GPU adapters and their features
   tsplus inspect ../shared/data/cup     what a scene folder holds
+  tsplus train capture.mp4 --out runs/c  train on a video's 100 sharpest frames (or: tsplus frames capture.mp4 --out DIR)
   tsplus train --out runs/small         train on the built-in scene (add --preset quick --iterations 300)
   tsplus export runs/small --format glb --y-up   engine-ready mesh (ply|glb|obj)
   tsplus eval runs/small procedural:small        held-out PSNR/SSIM of the mesh as an engine draws it
@@ -45,6 +46,7 @@ COMMANDS = {
     "export": ("export", "add_parser"),
     "eval": ("eval", "add_parser"),
     "inspect": ("inspect", "add_parser"),
+    "frames": ("frames", "add_parser"),
     "view": ("view", "add_parser"),
     "bench-viewer": ("bench_viewer", "add_parser"),
     "bench": ("bench", "add_bench_parser"),

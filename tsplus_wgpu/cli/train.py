@@ -40,13 +40,15 @@ _FROM_FLAG = {**{k: (lambda v: v == "on") for k in ("topology", "shell", "carve"
 def add_parser(sub):
     p = sub.add_parser(
         "train", help="train Triangle Splatting+ on a scene and export an opaque, vertex-coloured mesh",
-        description="Train on SCENE (a COLMAP / transforms.json / LLFF / photos folder; default: the built-in "
+        description="Train on SCENE (a COLMAP / transforms.json / LLFF / photos folder or a video; default: the built-in "
                     "procedural scene, 'procedural:tiny|small|demo' to pick its size) and write to --out: "
                     "mesh.ply (opaque, vertex colours from SH DC), metrics.json (held-out PSNR/SSIM), test "
                     "renders, log.jsonl, config.json and checkpoint.npz (--resume continues it bit-identically). "
                     "--normals DIR adds method.md's optional normal loss.")
     p.add_argument("scene", nargs="?", default="procedural:small",
-                   help="scene folder, or procedural[:tiny|small|demo] (default procedural:small)")
+                   help="scene folder (COLMAP, transforms.json, LLFF or a folder of photos), a video file (its 100 "
+                        "sharpest frames; `tsplus frames` picks another number), or procedural[:tiny|small|demo] "
+                        "(default procedural:small)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--config", default=None, metavar="FILE",
                    help="JSON or TOML file with the keys of a run's config.json (iterations, quick, indoor, seed, "
@@ -317,7 +319,7 @@ def run(args):
     out, ckpt, loaded = _output_folder(args)
     t0 = time.perf_counter()
     ctx = GpuContext(args.adapter)
-    plan = plan_run(args, ctx.is_cpu, lambda: frame_sizes(args.scene, args.images),
+    plan = plan_run(args, ctx.is_cpu, lambda: frame_sizes(args.scene, args.images, not args.no_progress),
                     None if loaded is None else loaded[1]["config"])
     args.preset, args.downscale = plan.preset, plan.downscale
     if plan.iterations is not None:

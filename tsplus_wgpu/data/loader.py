@@ -16,7 +16,7 @@ from .plausible import check_train_size
 from .scene import Scene, downscaled_size, load_frames, make_split, select_frames
 from .tracks import remap, subset
 
-FORMATS = ("colmap", "transforms", "nerf-synthetic", "llff", "photos", "procedural")
+FORMATS = ("colmap", "transforms", "nerf-synthetic", "llff", "photos", "video", "procedural")
 
 
 def _parse_background(background, default):
@@ -89,9 +89,12 @@ def detect_format(path) -> str:
     """Name the format of a scene folder (see :data:`FORMATS`) without loading it."""
     from .colmap import find_model_dir  # noqa: PLC0415
     from .transforms import find_transforms  # noqa: PLC0415
+    from .video import is_frames_folder, is_video  # noqa: PLC0415
     if path is None or str(path).split(":")[0] == "procedural":
         return "procedural"
     root = Path(path)
+    if root.is_file() and is_video(root):
+        return "video"
     if root.is_file():
         root = root.parent
     if find_model_dir(root) is not None:
@@ -102,7 +105,7 @@ def detect_format(path) -> str:
     if (root / "poses_bounds.npy").is_file():
         return "llff"
     if list_images(root / "images") or list_images(root):
-        return "photos"
+        return "video" if is_frames_folder(root / "images" if list_images(root / "images") else root) else "photos"
     raise SceneError(f"{root}: no images and no camera model found (expected COLMAP sparse/, "
                      "transforms.json, poses_bounds.npy or photos); point to a scene folder")
 
@@ -113,7 +116,7 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
     """Load a scene, detecting its format.
 
     Args:
-        path: scene folder (or its ``transforms.json`` / ``poses_bounds.npy``); ``None`` or
+        path: scene folder (or its ``transforms.json`` / ``poses_bounds.npy``), a video (:mod:`.video`); ``None`` or
             ``"procedural"`` (optionally ``"procedural:tiny|small|demo"``) for the built-in scene.
         images: image folder name inside the scene (default ``images``, or ``images_N`` when
             ``downscale`` is N and that folder exists, or when ``images/`` is missing: see the summary).
@@ -148,8 +151,8 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
             sc.warnings.append("downscale/background are ignored for the procedural scene; pick a size instead")
         return sc
 
-    root = _scene_root(path)
     warnings: list = []
+    root = _scene_root(path, cache_dir, progress, warnings)
     fmt, frame_specs, rest, pts, cols, bounds, (image_dir, why), rec = _read_format(root, images, downscale,
                                                                                    cache_dir, progress, warnings)
     bg = _parse_background(background, (1.0, 1.0, 1.0) if fmt == "nerf-synthetic" else (0.0, 0.0, 0.0))
@@ -228,16 +231,21 @@ def _check_options(points, on_bad_image, downscale):
     return downscale
 
 
-def _scene_root(path) -> Path:
-    """The scene folder ``path`` names (a folder, or its transforms .json / poses_bounds.npy)."""
+def _scene_root(path, cache_dir=None, progress=False, warnings=None) -> Path:
+    """The scene folder ``path`` names (a folder, or its transforms .json / poses_bounds.npy; for
+    a video file, the folder of its frames in the cache, extracted on the first call)."""
+    from .video import is_video, video_frames_dir  # noqa: PLC0415
     root = Path(path).expanduser()
     if not root.exists():
         raise SceneError(f"{root}: no such file or folder; check the path")
+    if root.is_file() and is_video(root):
+        return video_frames_dir(root, cache=cache_dir, progress=progress, warnings=warnings)
     if root.is_file():
         if root.name.endswith(".json") or root.name == "poses_bounds.npy":
             root = root.parent
         else:
-            raise SceneError(f"{root}: not a scene folder; pass the folder holding the images and cameras")
+            raise SceneError(f"{root}: not a scene folder or a video; pass the folder holding the images and cameras, "
+                             "or a video file (.mp4, .mov, ...)")
     if not root.is_dir():
         raise SceneError(f"{root}: not a folder; pass the scene folder")
     return root
@@ -280,9 +288,15 @@ def _read_format(root, images, downscale, cache_dir, progress, warnings):
                                  "LLFF scene) in it")
             raise SceneError(f"{root}: no images and no camera model found (expected COLMAP sparse/, "
                              "transforms.json, poses_bounds.npy or photos); point to a scene folder")
-        fmt = "photos"
+        from .video import is_frames_folder, read_manifest  # noqa: PLC0415
+        fmt = "video" if is_frames_folder(photo_dir) else "photos"
         image_dir = photo_dir
-        model_dir = run_photos_sfm(photo_dir, names, cache=cache_dir, progress=progress, warnings=warnings)
+        if fmt == "video":
+            m = read_manifest(photo_dir)
+            why = (f"the sharpest frame of each of {len(m.get('frames', names))} windows of the "
+                   f"{m.get('frames_decoded', '?')} frames of {Path(m.get('video', '?')).name}")
+        model_dir = run_photos_sfm(photo_dir, names, cache=cache_dir, progress=progress, warnings=warnings,
+                                   sequential=fmt == "video")
         rest = downscale
         frame_specs, pts, cols, _, rec = colmap_frames(root, model_dir, photo_dir, warnings)
     if why.startswith("images/ is missing"):
@@ -372,14 +386,15 @@ def _triangulated(specs, background, train_idx, cache_dir, progress, warnings,
     return pts, cols, None if tracks is None else remap(tracks, np.asarray(use, np.int64))
 
 
-def frame_sizes(path, images=None) -> list:
+def frame_sizes(path, images=None, progress=False) -> list:
     """``(width, height)`` of every image of the scene at ``path`` before any ``downscale``,
     without reading pixels (a folder of photos runs its SfM first, cached for the load): the
     cameras' sizes, or with ``images`` (an image folder of the user's choice, which ``downscale``
-    shrinks further) the files' own. What plans a downscale (``tsplus train`` on a CPU)."""
+    shrinks further) the files' own. What plans a downscale (``tsplus train`` on a CPU);
+    ``progress``: bars for a video's frames and the SfM."""
     from .images import read_image_size  # noqa: PLC0415
-    root = _scene_root(path)
-    _, specs, *_ = _read_format(root, images, 1.0, None, False, [])
+    root = _scene_root(path, None, progress, [])
+    _, specs, *_ = _read_format(root, images, 1.0, None, progress, [])
     if images is None:
         return [(f.camera.width, f.camera.height) for f in specs]
     return [read_image_size(f.path) for f in specs if Path(f.path).is_file()]
