@@ -45,7 +45,7 @@ RECIPE = "v5"
 SFM_RECIPE = "v3"
 #: the frames of a video (:mod:`.video`) are matched in time order: each with the next this many,
 #: and with the frames 16, 32, ... 512 further on (COLMAP's sequential matching with its quadratic
-#: overlap: 2 ** k for k below this), instead of every pair: 100 frames give 1,123 pairs, not 4,950
+#: overlap: 2 ** k for k below this), instead of every pair: 100 frames give 1,133 pairs, not 4,950
 SEQUENTIAL_OVERLAP = 10
 
 #: each posed image is also matched along the known epipolar lines (:mod:`.guided`) with this many
