@@ -63,3 +63,72 @@ def test_photos_only_sfm_of_a_tiny_unmatchable_set(tmp_path):
         write_image(tmp_path / f"flat_{i}.png", np.full((90, 120, 3), 0.3 + 0.1 * i) + 0.01 * rng.random((90, 120, 3)))
     with pytest.raises(SceneError, match=r"registered only 0 of 4 photos|SfM failed"):
         load_scene(tmp_path, cache_dir=tmp_path / "cache")
+
+
+def test_ordered_pairs_follow_the_natural_name_order():
+    from tsplus_wgpu.data.photos import natural_key, ordered_pairs
+    names = ["IMG_10.jpg", "IMG_9.jpg", "img_11.JPG", "IMG_1.jpg", "IMG_100.jpg"]
+    assert sorted(names, key=natural_key) == ["IMG_1.jpg", "IMG_9.jpg", "IMG_10.jpg", "img_11.JPG", "IMG_100.jpg"]
+    assert ordered_pairs(names, overlap=1) == [("IMG_1.jpg", "IMG_9.jpg"), ("IMG_9.jpg", "IMG_10.jpg"),
+                                               ("IMG_10.jpg", "img_11.JPG"), ("img_11.JPG", "IMG_100.jpg")]
+    frames = [f"{i}.jpg" for i in range(100)]
+    pairs = ordered_pairs(frames[::-1], overlap=10)
+    assert len(pairs) == len(set(pairs)) == 1133               # the count of COLMAP's sequential matching
+    gaps = {int(b[:-4]) - int(a[:-4]) for a, b in pairs}
+    assert gaps == set(range(1, 11)) | {16, 32, 64}
+    small = [f"{i}.jpg" for i in range(11)]                     # 11 photos, overlap 10: every pair
+    assert len(ordered_pairs(small, overlap=10)) == 55
+
+
+@pytest.mark.slow
+def test_many_photos_matched_in_name_order_fall_back_to_every_pair(tmp_path, monkeypatch):
+    """More photos than ORDERED_PHOTOS_MIN are matched in their name order; when that registers
+    too few of them (here: one pair matched), every pair is matched as well and all register."""
+    if not (DATA / "cup").is_dir():
+        pytest.skip(f"shared data scene {DATA / 'cup'} not found (set TSPLUS_DATA)")
+    from tsplus_wgpu.data import photos
+    monkeypatch.delenv("TSPLUS_SFM_THREADS", raising=False)
+    ref = load_scene(DATA / "cup", split="none", points="none")
+    centres = np.stack([c.center for c in ref.cameras])
+    near = np.argsort(np.linalg.norm(centres - centres[ref.image_names.index("1.jpg")], axis=1))[:10]
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for i in near:
+        write_image(folder / ref.image_names[i], resize_area(ref.images[i], 400, 300))
+    monkeypatch.setattr(photos, "ORDERED_PHOTOS_MIN", 5)
+    real_pairs, asked = photos.ordered_pairs, []
+    monkeypatch.setattr(photos, "ordered_pairs", lambda names: asked.append(len(names)) or real_pairs(names)[:1])
+    sc = load_scene(folder, split="none", points="none", cache_dir=tmp_path / "cache")
+    assert asked == [10] and len(sc.cameras) == 10
+    assert any("name order registered" in w and "every pair matched as well" in w for w in sc.warnings)
+    # in name order with their real pairs (10 photos: every pair, as before): no fallback
+    monkeypatch.setattr(photos, "ordered_pairs", lambda names: asked.append(len(names)) or real_pairs(names))
+    again = load_scene(folder, split="none", points="none", cache_dir=tmp_path / "cache2")
+    assert asked == [10, 10] and len(again.cameras) == 10
+    assert not any("name order" in w for w in again.warnings)
+
+
+def test_which_matching_a_photo_folder_gets(tmp_path, monkeypatch):
+    """Every pair up to ORDERED_PHOTOS_MIN photos; past it, the pairs of the name order, or COLMAP's
+    sequential matching when a name holds a space (a pair list cannot); a video's frames: sequential."""
+    from tsplus_wgpu.data import photos
+    seen = []
+
+    def spy(*a, **k):
+        seen.append((k.get("sequential"), None if k.get("pairs") is None else len(k["pairs"])))
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(photos, "_extract_and_match", spy)
+    monkeypatch.setattr(photos, "ORDERED_PHOTOS_MIN", 4)
+    for case, names in [("few", [f"p{i}.png" for i in range(4)]), ("many", [f"p{i}.png" for i in range(6)]),
+                        ("spaces", [f"photo {i}.png" for i in range(6)])]:
+        folder = tmp_path / case
+        folder.mkdir()
+        for n in names:
+            write_image(folder / n, np.full((8, 8, 3), 0.5))
+        with pytest.raises(SceneError, match="SfM failed"):
+            photos.run_photos_sfm(folder, names, cache=tmp_path / "cache", progress=False)
+    with pytest.raises(SceneError, match="SfM failed"):
+        photos.run_photos_sfm(tmp_path / "many", [f"p{i}.png" for i in range(6)], cache=tmp_path / "cache",
+                              progress=False, sequential=True)
+    assert seen == [(False, None), (False, 15), (True, None), (True, None)]

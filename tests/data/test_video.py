@@ -11,7 +11,7 @@ import pytest
 
 from tsplus_wgpu.data import SceneError, detect_format, load_scene
 from tsplus_wgpu.data import loader
-from tsplus_wgpu.data import sfm as sfm_mod
+from tsplus_wgpu.data import photos as photos_mod
 from tsplus_wgpu.data.images import resize_area
 from tsplus_wgpu.data.video import (MANIFEST, SCORE_SIZE, choose_frames, extract_frames, sharpness,
                                     video_frames_dir)
@@ -164,8 +164,8 @@ def test_a_video_of_the_cup_registers_in_time_order(tmp_path, monkeypatch):
         frames += [bgr, cv2.GaussianBlur(bgr, (0, 0), 2.0)]
     video = write_video(tmp_path / "cup.mkv", frames, fps=5, codec="FFV1")
     seen = []
-    orig = sfm_mod._extract_and_match
-    monkeypatch.setattr(sfm_mod, "_extract_and_match", lambda *a, **k: (seen.append(k.get("sequential")), orig(*a, **k)))
+    orig = photos_mod._extract_and_match
+    monkeypatch.setattr(photos_mod, "_extract_and_match", lambda *a, **k: (seen.append(k.get("sequential")), orig(*a, **k)))
     frames_dir = video_frames_dir(video, cache=tmp_path / "cache", count=12)
     assert json.loads((frames_dir / MANIFEST).read_text())["indices"] == list(range(0, 24, 2))
     sc = load_scene(frames_dir, split="none", cache_dir=tmp_path / "cache", points="none")

@@ -1,5 +1,5 @@
-"""Scene ingestion: COLMAP, transforms.json, LLFF and photos-only input, plus the built-in
-procedural scene.
+"""Scene ingestion: COLMAP, transforms.json, LLFF, photos-only input and videos, plus the
+built-in procedural scene.
 
 Main entry points:
 

@@ -258,7 +258,7 @@ def _read_format(root, images, downscale, cache_dir, progress, warnings):
     of photos runs SfM (cached) first."""
     from .colmap import colmap_frames, find_model_dir  # noqa: PLC0415
     from .llff import llff_frames  # noqa: PLC0415
-    from .sfm import photo_names, run_photos_sfm  # noqa: PLC0415
+    from .photos import photo_names, run_photos_sfm  # noqa: PLC0415
     from .transforms import find_transforms, transforms_frames  # noqa: PLC0415
     pts = cols = bounds = image_dir = rec = None
     why = ""

@@ -1,8 +1,7 @@
 """Structure from motion with pycolmap, and initial points for scenes that have poses only.
 
-* :func:`run_photos_sfm`: SIFT features, matching and incremental mapping for a folder
-  of photos, with a progress display; the model is cached in the user cache (:func:`cache_root`)
-  and reused while the photos have not changed.
+* the photos' SfM (:mod:`.photos`) uses its features and matching (:func:`_extract_and_match`)
+  and its cache (:func:`cache_root`), keyed by the photos' bytes (:func:`_fingerprint`).
 * :func:`triangulate_known_poses`: features and matches as above, then pycolmap's
   point triangulator with the given cameras held fixed.
 
@@ -13,7 +12,6 @@ The fallback without SfM points, points in the cameras' frusta, is :mod:`.frusta
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import shutil
 import sys
@@ -25,7 +23,7 @@ import numpy as np
 
 from .errors import SceneError
 from .guided import add_guided_matches
-from .images import IMAGE_EXTENSIONS, read_image_size, write_image
+from .images import write_image
 from .tracks import check as check_tracks
 from .tracks import of_pycolmap_points as tracks_of_points
 
@@ -200,88 +198,6 @@ def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, ca
         pycolmap.match_image_pairs(db, matching_options=mopt, pairing_options=popt, device=pycolmap.Device.cpu)
 
 
-def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = True, warnings=None,
-                   sequential: bool = False):
-    """Incremental SfM on the photos ``names`` inside ``photo_dir``.
-
-    ``sequential``: the photos are the frames of a video, in time order (:mod:`.video`), matched
-    with their neighbours in time (:data:`SEQUENTIAL_OVERLAP`); otherwise every pair is matched.
-
-    Returns:
-        the folder of the resulting COLMAP model (``.../sparse/0``), cached and reused while the
-        photos (names and bytes) are unchanged.
-
-    Raises:
-        SceneError: too few photos, or SfM registers too few of them.
-    """
-    pycolmap = _pycolmap()
-    sfm_threads()   # a bad TSPLUS_SFM_THREADS is an error before any work, never a fallback
-    pycolmap.set_random_seed(0)
-    warnings = warnings if warnings is not None else []
-    photo_dir = Path(photo_dir)
-    if len(names) < 3:
-        raise SceneError(f"{photo_dir}: {len(names)} photo(s) found, SfM needs at least 3 overlapping photos; add more")
-    root, note = cache_root(None, cache)
-    if note:
-        warnings.append(note)
-    fp = _fingerprint([photo_dir / n for n in names], f"sequential{SEQUENTIAL_OVERLAP}" if sequential else "")
-    work = root / f"sfm_{fp[:16]}"
-    model_dir = work / "sparse" / "0"
-    if (model_dir / "cameras.bin").is_file() and (work / "done.json").is_file():
-        warnings.append(f"reused cached SfM model {model_dir}")
-        return model_dir
-    if work.exists():
-        shutil.rmtree(work, ignore_errors=True)
-    try:
-        work.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SceneError(f"{work}: cannot create the SfM cache folder ({exc.strerror}); set TSPLUS_CACHE or "
-                         "XDG_CACHE_HOME to a writable folder") from None
-    db = work / "database.db"
-    prog = _Progress(progress, 3 + len(names), f"SfM on {len(names)} photos")
-    try:
-        prog.stage("extracting SIFT features", 0)
-        sizes = {read_image_size(photo_dir / n) for n in names}
-        small = max(max(s) for s in sizes) < 1200
-        # one camera for photos of one size (the usual single-device capture), else one per photo
-        mode = pycolmap.CameraMode.SINGLE if len(sizes) == 1 else pycolmap.CameraMode.PER_IMAGE
-        _extract_and_match(pycolmap, db, photo_dir, names, mode, "SIMPLE_RADIAL",
-                           progress=prog, small_images=small, sequential=sequential)
-        prog.stage("incremental mapping")
-        opts = pycolmap.IncrementalPipelineOptions()
-        opts.num_threads = sfm_threads()
-        opts.random_seed = 0
-        opts.multiple_models = False
-        count = {"n": 0}
-
-        def on_image():
-            count["n"] += 1
-            prog.stage(f"registered {count['n'] + 1} images")
-
-        out = work / "sparse_all"
-        out.mkdir(exist_ok=True)
-        recs = pycolmap.incremental_mapping(db, photo_dir, out, options=opts, next_image_callback=on_image)
-    except SceneError:
-        raise
-    except Exception as exc:
-        raise SceneError(f"{photo_dir}: SfM failed ({str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}); "
-                         "take more overlapping, sharp photos") from None
-    finally:
-        prog.close()
-    best = max(recs.values(), key=lambda r: r.num_reg_images()) if recs else None
-    nreg = best.num_reg_images() if best is not None else 0
-    need = max(3, (len(names) + 1) // 2)
-    if nreg < need:
-        raise SceneError(f"{photo_dir}: SfM registered only {nreg} of {len(names)} photos (need {need}); "
-                         "take more overlapping, sharp photos with texture, or remove the unrelated ones")
-    if nreg < len(names):
-        warnings.append(f"SfM registered {nreg} of {len(names)} photos; the others are skipped")
-    model_dir.mkdir(parents=True, exist_ok=True)
-    best.write(str(model_dir))
-    (work / "done.json").write_text(json.dumps({"images": list(names), "registered": nreg}))
-    return model_dir
-
-
 def _neighbour_pairs(cameras: list, names: list, k: int = 12):
     """Image pairs for matching with known poses: each image with its k nearest cameras
     (distance plus a penalty for different viewing directions)."""
@@ -453,12 +369,6 @@ def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaus
     finally:
         prog.close()
     return rec
-
-
-def photo_names(folder: Path) -> list:
-    """Image files in a photos-only folder (sorted)."""
-    return sorted(p.name for p in Path(folder).iterdir()
-                  if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith("."))
 
 
 def reprojection_errors(rec, cameras: list, names: list | None = None) -> np.ndarray:

@@ -8,7 +8,7 @@
 * :func:`video_frames_dir`: the frames of a video in the user cache, keyed by the video's bytes.
 
 A folder with a manifest (made here, or by ``tsplus frames``) is what the photo SfM
-(:func:`~tsplus_wgpu.data.sfm.run_photos_sfm`) matches in time order: each frame with its
+(:func:`~tsplus_wgpu.data.photos.run_photos_sfm`) matches in time order: each frame with its
 neighbours, not every pair.
 """
 
@@ -90,6 +90,7 @@ def _cv2():
 
 def _open(cv2, video: Path):
     cap = cv2.VideoCapture(str(video))
+    cap.set(cv2.CAP_PROP_ORIENTATION_AUTO, 1)     # a phone's portrait video comes out upright (the default)
     if not cap.isOpened():
         raise SceneError(f"{video}: cannot be read as a video (an unknown format or a damaged file); convert it to "
                          "MP4 (H.264), or extract its frames into a folder of photos")

@@ -1,0 +1,159 @@
+"""Structure from motion for a folder of photos or a video's frames (pycolmap), with a progress bar.
+
+:func:`run_photos_sfm`: SIFT features, matching (every pair; the frames of a video, or more than
+:data:`ORDERED_PHOTOS_MIN` photos, in their order) and incremental mapping. The model is cached in
+the user cache (:func:`~tsplus_wgpu.data.sfm.cache_root`) and reused while the photos have not
+changed. pycolmap runs on one thread, so it gives the same model on every run.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+from .errors import SceneError
+from .images import IMAGE_EXTENSIONS, read_image_size
+from .sfm import (SEQUENTIAL_OVERLAP, _extract_and_match, _fingerprint, _Progress, _pycolmap, cache_root,
+                  sfm_threads)
+
+#: a folder of more photos than this is matched in the photos' natural name order like a video's
+#: frames (phones name photos in the order they were taken): every pair of 300 photos is 44,850
+#: pairs, hours on one thread. When that registers fewer than :data:`ORDERED_MIN_SHARE` of the
+#: photos, every other pair is matched as well and the mapping runs again.
+ORDERED_PHOTOS_MIN = 100
+ORDERED_MIN_SHARE = 0.9
+
+
+def natural_key(name: str) -> list:
+    """Sort key of a file name with its digit runs compared as numbers: ``2.jpg`` before ``10.jpg``."""
+    return [int(t) if k % 2 else t.lower() for k, t in enumerate(re.split(r"(\d+)", str(name)))]
+
+
+def ordered_pairs(names: list, overlap: int = SEQUENTIAL_OVERLAP) -> list:
+    """Image pairs of ``names`` taken in their natural order (:func:`natural_key`): each with the
+    next ``overlap`` and with those ``2 ** k`` further on for ``k < overlap``, as COLMAP's
+    sequential matching pairs the frames of a video."""
+    order = sorted(names, key=natural_key)
+    n = len(order)
+    pairs = []
+    for i in range(n):
+        ahead = set(range(i + 1, min(n, i + overlap + 1))) | {i + (1 << k) for k in range(overlap) if i + (1 << k) < n}
+        pairs += [(order[i], order[j]) for j in sorted(ahead)]
+    return pairs
+
+
+def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = True, warnings=None,
+                   sequential: bool = False):
+    """Incremental SfM on the photos ``names`` inside ``photo_dir``.
+
+    ``sequential``: the photos are the frames of a video, in time order (:mod:`.video`), matched
+    with their neighbours in time (:data:`SEQUENTIAL_OVERLAP`). Otherwise every pair is matched,
+    or for more than :data:`ORDERED_PHOTOS_MIN` photos the pairs of their name order first.
+
+    Returns:
+        the folder of the resulting COLMAP model (``.../sparse/0``), cached and reused while the
+        photos (names and bytes) are unchanged.
+
+    Raises:
+        SceneError: too few photos, or SfM registers too few of them.
+    """
+    pycolmap = _pycolmap()
+    sfm_threads()   # a bad TSPLUS_SFM_THREADS is an error before any work, never a fallback
+    pycolmap.set_random_seed(0)
+    warnings = warnings if warnings is not None else []
+    photo_dir = Path(photo_dir)
+    if len(names) < 3:
+        raise SceneError(f"{photo_dir}: {len(names)} photo(s) found, SfM needs at least 3 overlapping photos; add more")
+    root, note = cache_root(None, cache)
+    if note:
+        warnings.append(note)
+    ordered = not sequential and len(names) > ORDERED_PHOTOS_MIN
+    mode = f"sequential{SEQUENTIAL_OVERLAP}" if sequential else (f"ordered{SEQUENTIAL_OVERLAP}" if ordered else "")
+    work = root / f"sfm_{_fingerprint([photo_dir / n for n in names], mode)[:16]}"
+    model_dir = work / "sparse" / "0"
+    if (model_dir / "cameras.bin").is_file() and (work / "done.json").is_file():
+        warnings.append(f"reused cached SfM model {model_dir}")
+        return model_dir
+    if work.exists():
+        shutil.rmtree(work, ignore_errors=True)
+    try:
+        work.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SceneError(f"{work}: cannot create the SfM cache folder ({exc.strerror}); set TSPLUS_CACHE or "
+                         "XDG_CACHE_HOME to a writable folder") from None
+    prog = _Progress(progress, 3 + len(names), f"SfM on {len(names)} photos")
+    try:
+        best = _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, warnings)
+    except SceneError:
+        raise
+    except Exception as exc:
+        raise SceneError(f"{photo_dir}: SfM failed ({str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}); "
+                         "take more overlapping, sharp photos") from None
+    finally:
+        prog.close()
+    nreg = best.num_reg_images() if best is not None else 0
+    need = max(3, (len(names) + 1) // 2)
+    if nreg < need:
+        raise SceneError(f"{photo_dir}: SfM registered only {nreg} of {len(names)} photos (need {need}); "
+                         "take more overlapping, sharp photos with texture, or remove the unrelated ones")
+    if nreg < len(names):
+        warnings.append(f"SfM registered {nreg} of {len(names)} photos; the others are skipped")
+    model_dir.mkdir(parents=True, exist_ok=True)
+    best.write(str(model_dir))
+    (work / "done.json").write_text(json.dumps({"images": list(names), "registered": nreg}))
+    return model_dir
+
+
+def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, warnings):
+    """Features, matches and incremental mapping of :func:`run_photos_sfm`: the reconstruction
+    that registers the most photos (None when there is none)."""
+    db = work / "database.db"
+    prog.stage("extracting SIFT features", 0)
+    sizes = {read_image_size(photo_dir / n) for n in names}
+    small = max(max(s) for s in sizes) < 1200
+    # one camera for photos of one size (the usual single-device capture), else one per photo
+    mode = pycolmap.CameraMode.SINGLE if len(sizes) == 1 else pycolmap.CameraMode.PER_IMAGE
+    # a pair list cannot hold names with spaces: COLMAP's own sequential order (by name) for those
+    listed = ordered and not any(c.isspace() for n in names for c in n)
+    _extract_and_match(pycolmap, db, photo_dir, names, mode, "SIMPLE_RADIAL", progress=prog, small_images=small,
+                       sequential=sequential or (ordered and not listed), pairs=ordered_pairs(names) if listed else None)
+    best = _mapping(pycolmap, db, photo_dir, work, prog)
+    nreg = best.num_reg_images() if best is not None else 0
+    if ordered and nreg < ORDERED_MIN_SHARE * len(names):
+        warnings.append(f"SfM of the photos in name order registered {nreg} of {len(names)}: every pair matched "
+                        "as well")
+        prog.stage("matching every pair", 0)
+        mopt = pycolmap.FeatureMatchingOptions()
+        mopt.num_threads = sfm_threads()
+        pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)   # skips the pairs done
+        shutil.rmtree(work / "sparse_all", ignore_errors=True)
+        best = _mapping(pycolmap, db, photo_dir, work, prog)
+    return best
+
+
+def _mapping(pycolmap, db, photo_dir, work, prog):
+    """pycolmap's incremental mapping of the matched database ``db``: the reconstruction that
+    registers the most images, or None."""
+    prog.stage("incremental mapping")
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.num_threads = sfm_threads()
+    opts.random_seed = 0
+    opts.multiple_models = False
+    count = {"n": 0}
+
+    def on_image():
+        count["n"] += 1
+        prog.stage(f"registered {count['n'] + 1} images")
+
+    out = work / "sparse_all"
+    out.mkdir(exist_ok=True)
+    recs = pycolmap.incremental_mapping(db, photo_dir, out, options=opts, next_image_callback=on_image)
+    return max(recs.values(), key=lambda r: r.num_reg_images()) if recs else None
+
+
+def photo_names(folder: Path) -> list:
+    """Image files in a photos-only folder (sorted)."""
+    return sorted(p.name for p in Path(folder).iterdir()
+                  if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith("."))
