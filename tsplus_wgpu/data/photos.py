@@ -127,7 +127,7 @@ def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, w
         prog.stage("matching every pair", 0)
         mopt = pycolmap.FeatureMatchingOptions()
         mopt.num_threads = sfm_threads()
-        pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)   # skips the pairs done
+        pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)
         shutil.rmtree(work / "sparse_all", ignore_errors=True)
         best = _mapping(pycolmap, db, photo_dir, work, prog)
     return best
