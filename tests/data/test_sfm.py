@@ -99,12 +99,13 @@ def test_many_photos_matched_in_name_order_fall_back_to_every_pair(tmp_path, mon
     real_pairs, asked = photos.ordered_pairs, []
     monkeypatch.setattr(photos, "ordered_pairs", lambda names: asked.append(len(names)) or real_pairs(names)[:1])
     sc = load_scene(folder, split="none", points="none", cache_dir=tmp_path / "cache")
-    assert asked == [10] and len(sc.cameras) == 10
+    assert asked and set(asked) == {10} and len(sc.cameras) == 10     # (the progress bar counts the pairs too)
     assert any("name order registered" in w and "every pair matched as well" in w for w in sc.warnings)
     # in name order with their real pairs (10 photos: every pair, as before): no fallback
+    n_before = len(asked)
     monkeypatch.setattr(photos, "ordered_pairs", lambda names: asked.append(len(names)) or real_pairs(names))
     again = load_scene(folder, split="none", points="none", cache_dir=tmp_path / "cache2")
-    assert asked == [10, 10] and len(again.cameras) == 10
+    assert len(asked) > n_before and len(again.cameras) == 10
     assert not any("name order" in w for w in again.warnings)
 
 

@@ -90,18 +90,21 @@ def _pycolmap():
 class _Progress:
     """Stage progress on stderr (tqdm when available); silent when disabled."""
 
-    def __init__(self, enabled: bool, total: int, desc: str):
+    def __init__(self, enabled: bool, total: float, desc: str, weighted: bool = False):
+        """``weighted``: ``total`` and the advances are estimated seconds, not steps: the bar shows
+        the share done and the time left, not a count."""
         self.enabled = enabled
         self.bar = None
         self.t0 = time.time()
         if enabled:
             try:
                 from tqdm import tqdm  # noqa: PLC0415
-                self.bar = tqdm(total=total, desc=desc, unit="step", file=sys.stderr, leave=True)
+                fmt = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}{postfix}]" if weighted else None
+                self.bar = tqdm(total=total, desc=desc, unit="step", file=sys.stderr, leave=True, bar_format=fmt)
             except ImportError:  # pragma: no cover
                 print(f"{desc} ...", file=sys.stderr)
 
-    def stage(self, text: str, advance: int = 1):
+    def stage(self, text: str, advance: float = 1):
         if not self.enabled:
             return
         if self.bar is not None:
@@ -109,6 +112,12 @@ class _Progress:
             self.bar.update(advance)
         else:  # pragma: no cover
             print(f"  {text} ({time.time() - self.t0:.0f}s)", file=sys.stderr)
+
+    def add(self, more: float):
+        """Make the work ``more`` larger (a stage that was not planned)."""
+        if self.bar is not None:
+            self.bar.total += more
+            self.bar.refresh()
 
     def note(self, text: str):
         if self.enabled and self.bar is not None:
@@ -167,7 +176,7 @@ def _fingerprint(paths, mode: str = "") -> str:
 
 def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, camera_model: str,
                        pairs=None, max_image_size: int = 1600, progress: _Progress | None = None,
-                       small_images: bool = False, sequential: bool = False):
+                       small_images: bool = False, sequential: bool = False, extract_units: float = 1):
     ext = pycolmap.FeatureExtractionOptions()
     ext.max_image_size = int(max_image_size)
     ext.num_threads = sfm_threads()
@@ -179,7 +188,7 @@ def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, ca
     pycolmap.extract_features(db, img_dir, image_names=list(names), camera_mode=camera_mode,
                               reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
     if progress:
-        progress.stage("matching")
+        progress.stage("matching", extract_units)
     mopt = pycolmap.FeatureMatchingOptions()
     mopt.num_threads = sfm_threads()
     if sequential:
