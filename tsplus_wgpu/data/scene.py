@@ -39,7 +39,7 @@ class Scene:
 
     Attributes:
         format: ``"colmap"``, ``"transforms"`` (instant-ngp), ``"nerf-synthetic"``, ``"llff"``,
-            ``"photos"`` (SfM run here) or ``"procedural"``.
+            ``"photos"`` (SfM run here), ``"video"`` (a video's frames, SfM run here) or ``"procedural"``.
         cameras: one pinhole :class:`Camera` per image (undistorted, at the loaded size).
         images: float32 ``[H, W, 3]`` RGB in [0, 1], alpha composited on ``background``.
         image_names: names relative to the image folder.
