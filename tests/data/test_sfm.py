@@ -133,3 +133,83 @@ def test_which_matching_a_photo_folder_gets(tmp_path, monkeypatch):
         photos.run_photos_sfm(tmp_path / "many", [f"p{i}.png" for i in range(6)], cache=tmp_path / "cache",
                               progress=False, sequential=True)
     assert seen == [(False, None), (False, 15), (True, None), (True, None)]
+
+
+def _exif_photo(path, rgb, focal_mm=None, model="iPhone 12"):
+    """A JPEG of ``rgb`` ([H, W, 3] float) with EXIF make, model and focal length when ``focal_mm``."""
+    from PIL import Image
+    from PIL.TiffImagePlugin import IFDRational
+    im = Image.fromarray((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
+    ex = im.getexif()
+    if focal_mm is not None:
+        ex[0x010F], ex[0x0110] = "Apple", model
+        sub = ex.get_ifd(0x8769)
+        sub[0x920A] = IFDRational(int(round(focal_mm * 100)), 100)
+        sub[0xA405] = int(round(26 * focal_mm / 4.2))
+    im.save(path, quality=95, exif=ex.tobytes())
+
+
+def test_camera_groups_by_size_and_exif_lens(tmp_path):
+    """Photos group by the camera that took them: size, EXIF make / model / lens / focal length;
+    a damaged focal length (zero denominator) reads as none, not as a group of its own per photo."""
+    from PIL.TiffImagePlugin import IFDRational
+    from tsplus_wgpu.data.photos import camera_groups, camera_key
+    rng = np.random.default_rng(0)
+    img = rng.random((48, 64, 3))
+    specs = {"a1.jpg": 4.2, "a2.jpg": 8.4, "a3.jpg": 4.2, "a4.jpg": None, "a5.jpg": 8.4}
+    for n, f in specs.items():
+        _exif_photo(tmp_path / n, img, f)
+    _exif_photo(tmp_path / "b1.jpg", img[:40], 4.2)                  # another size
+    _exif_photo(tmp_path / "c1.jpg", img, 4.2, model="Pixel 7")       # another phone, same focal length
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert camera_groups(tmp_path, names) == [["a1.jpg", "a3.jpg"], ["a2.jpg", "a5.jpg"], ["a4.jpg"], ["b1.jpg"],
+                                               ["c1.jpg"]]
+    assert camera_key(tmp_path / "a2.jpg") == ((64, 48), ("Apple", "iPhone 12", "", 8.4, 52.0))
+    assert camera_key(tmp_path / "a4.jpg") == ((64, 48), ("", "", "", 0.0, 0.0))
+    from PIL import Image
+    im = Image.open(tmp_path / "a1.jpg")
+    ex = im.getexif()
+    ex.get_ifd(0x8769)[0x920A] = IFDRational(1, 0)
+    im.save(tmp_path / "bad1.jpg", exif=ex.tobytes())
+    im.save(tmp_path / "bad2.jpg", exif=ex.tobytes())
+    assert camera_groups(tmp_path, ["bad1.jpg", "bad2.jpg"]) == [["bad1.jpg", "bad2.jpg"]]
+    assert camera_key(tmp_path / "bad1.jpg")[1][3] == 0.0
+
+
+def test_photos_of_two_lenses_get_a_camera_each(tmp_path, monkeypatch):
+    """A phone's photos through two lenses in turn (same size, EXIF 4.2 and 8.4 mm) get a camera
+    per lens, with focal lengths a factor 2 apart, instead of one focal length for both; one
+    lens keeps one camera and the cache key the folder had before lenses were told apart."""
+    import sqlite3
+    from tsplus_wgpu.data import photos
+    from tsplus_wgpu.data.sfm import _fingerprint
+    real, dbs = photos._extract_and_match, []
+
+    def extract_then_stop(pycolmap, db, *a, **k):
+        real(pycolmap, db, *a, **k)
+        dbs.append(db)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(photos, "_extract_and_match", extract_then_stop)
+    rng = np.random.default_rng(1)
+    img = np.kron(rng.random((30, 40, 3)), np.ones((8, 8, 1)))          # 320x240, blocky texture
+    for case, focal in [("lenses", lambda i: 4.2 if i % 2 == 0 else 8.4), ("one", lambda i: None)]:
+        folder = tmp_path / case
+        folder.mkdir()
+        names = [f"IMG_{i}.jpg" for i in range(6)]
+        for i, n in enumerate(names):
+            _exif_photo(folder / n, np.roll(img, 8 * i, axis=1), focal(i))
+        with pytest.raises(SceneError, match="SfM failed"):
+            photos.run_photos_sfm(folder, names, cache=tmp_path / "cache", progress=False)
+        with sqlite3.connect(dbs[-1]) as con:
+            cams = {cid: np.frombuffer(p)[0] for cid, p in con.execute("select camera_id, params from cameras")}
+            by_image = dict(con.execute("select name, camera_id from images"))
+        if case == "lenses":
+            assert len(cams) == 2
+            wide = {by_image[n] for n in names[0::2]}
+            tele = {by_image[n] for n in names[1::2]}
+            assert len(wide) == len(tele) == 1 and wide != tele
+            assert cams[tele.pop()] == pytest.approx(2 * cams[wide.pop()], rel=1e-6)
+        else:
+            assert len(cams) == 1 and len(by_image) == 6
+            assert (tmp_path / "cache" / f"sfm_{_fingerprint([folder / n for n in names], '')[:16]}").is_dir()

@@ -9,6 +9,7 @@ changed. pycolmap runs on one thread, so it gives the same model on every run.
 from __future__ import annotations
 
 import json
+import math
 import re
 import shutil
 from pathlib import Path
@@ -75,6 +76,9 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
         warnings.append(note)
     ordered = not sequential and len(names) > ORDERED_PHOTOS_MIN
     mode = f"sequential{SEQUENTIAL_OVERLAP}" if sequential else (f"ordered{SEQUENTIAL_OVERLAP}" if ordered else "")
+    groups = camera_groups(photo_dir, names)
+    if len(groups) > 1:      # one camera a group (before: one a photo); one group keeps its old key
+        mode += f"cameras{len(groups)}"
     work = root / f"sfm_{_fingerprint([photo_dir / n for n in names], mode)[:16]}"
     model_dir = work / "sparse" / "0"
     if (model_dir / "cameras.bin").is_file() and (work / "done.json").is_file():
@@ -91,7 +95,8 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
                      + _pair_count(names, sequential or ordered) * STEP_SECONDS["pair"],
                      f"SfM on {len(names)} photos", weighted=True)
     try:
-        best = _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, warnings)
+        best = _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, warnings,
+                             len(groups))
     except SceneError:
         raise
     except Exception as exc:
@@ -117,15 +122,17 @@ def _pair_count(names, in_order: bool) -> int:
     return len(ordered_pairs(names)) if in_order else len(names) * (len(names) - 1) // 2
 
 
-def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, warnings):
-    """Features, matches and incremental mapping of :func:`run_photos_sfm`: the reconstruction
-    that registers the most photos (None when there is none)."""
+def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, warnings, cameras=1):
+    """Features, matches and incremental mapping of :func:`run_photos_sfm` on photos taken by
+    ``cameras`` cameras (:func:`camera_groups`): the reconstruction that registers the most
+    photos (None when there is none)."""
     db = work / "database.db"
     prog.stage("extracting SIFT features", 0)
-    sizes = {read_image_size(photo_dir / n) for n in names}
-    small = max(max(s) for s in sizes) < 1200
-    # one camera for photos of one size (the usual single-device capture), else one per photo
-    mode = pycolmap.CameraMode.SINGLE if len(sizes) == 1 else pycolmap.CameraMode.PER_IMAGE
+    small = max(max(read_image_size(photo_dir / n)) for n in names) < 1200
+    # one camera for the photos of one device and lens (the usual capture). Several: COLMAP's own
+    # mode, a camera for each image size and EXIF focal length (two lenses' photos under one
+    # camera would leave one focal length for both; a camera a photo would leave each its own)
+    mode = pycolmap.CameraMode.SINGLE if cameras == 1 else pycolmap.CameraMode.AUTO
     # a pair list cannot hold names with spaces: COLMAP's own sequential order (by name) for those
     listed = ordered and not any(c.isspace() for n in names for c in n)
     pairs = ordered_pairs(names) if listed else None
@@ -168,6 +175,42 @@ def _mapping(pycolmap, db, photo_dir, work, prog, matched: float):
     out.mkdir(exist_ok=True)
     recs = pycolmap.incremental_mapping(db, photo_dir, out, options=opts, next_image_callback=on_image)
     return max(recs.values(), key=lambda r: r.num_reg_images()) if recs else None
+
+
+def camera_groups(photo_dir: Path, names: list) -> list:
+    """``names`` grouped by the camera that took them, in the order of each group's first photo:
+    the image size and, where the files carry them, the EXIF make, model, lens and focal length
+    (a phone's wide, ultra-wide and tele lenses give photos of one size and different focal
+    lengths). Photos without EXIF group by size alone."""
+    groups: dict = {}
+    for n in names:
+        groups.setdefault(camera_key(Path(photo_dir) / n), []).append(n)
+    return list(groups.values())
+
+
+def camera_key(path: Path) -> tuple:
+    """``((width, height), (make, model, lens, focal mm, focal 35 mm))`` of a photo file, its
+    header only; empty strings and zeros for the EXIF tags it lacks."""
+    try:
+        from PIL import Image  # noqa: PLC0415
+        with Image.open(path) as im:
+            size = (int(im.size[0]), int(im.size[1]))
+            exif = im.getexif()
+            sub = exif.get_ifd(0x8769)           # the Exif sub-IFD: lens and focal lengths
+    except Exception:                            # not a format PIL reads: its size, no EXIF
+        return read_image_size(path), ()
+
+    def text(tag, ifd):
+        v = ifd.get(tag)
+        return str(v).strip().strip("\x00").strip() if v is not None else ""
+
+    def number(tag):
+        try:
+            v = float(sub.get(tag) or 0.0)
+        except (TypeError, ValueError, ZeroDivisionError):
+            return 0.0
+        return round(v, 2) if math.isfinite(v) else 0.0
+    return size, (text(0x010F, exif), text(0x0110, exif), text(0xA434, sub), number(0x920A), number(0xA405))
 
 
 def photo_names(folder: Path) -> list:
