@@ -357,6 +357,11 @@ CASES = [
       ["frames", "{d}/walk.mp4", "--out", "{d}/f"], "error", ("--out",)),
     C("frames-out-not-empty", None, lambda d, ctx: [write("walk.mp4", b"x")(d, ctx), write("o/a.jpg", "x")(d, ctx)],
       ["frames", "{d}/walk.mp4", "--out", "{d}/o"], "error", ("--out",)),
+    # ---- HEIC photos (an iPhone's): converted to JPEG in the cache first
+    C("heic-junk", None, lambda d, ctx: [write(f"IMG_{i}.HEIC", bytes(range(256)) * 8)(d, ctx) for i in range(3)],
+      INSPECT, "error", ("IMG_0.HEIC",)),
+    C("heic-empty-train", None, lambda d, ctx: [write(f"IMG_{i}.heic", b"")(d, ctx) for i in range(3)],
+      ["train", "{d}", "--out", "{out}", *TRAIN_FAST], "error", ("IMG_0.heic",)),
     # ---- train flags
     C("flag-iterations-0", None, None, [*TRAIN_P, "--iterations", "0"], "error", ("--iterations",)),
     C("flag-iterations-10e12", None, None, [*TRAIN_P, "--iterations", "1000000000000"], "error", ("--iterations",)),

@@ -104,7 +104,7 @@ def detect_format(path) -> str:
         return variant
     if (root / "poses_bounds.npy").is_file():
         return "llff"
-    if list_images(root / "images") or list_images(root):
+    if _has_photos(root / "images") or _has_photos(root):
         return "video" if is_frames_folder(root / "images" if list_images(root / "images") else root) else "photos"
     raise SceneError(f"{root}: no images and no camera model found (expected COLMAP sparse/, "
                      "transforms.json, poses_bounds.npy or photos); point to a scene folder")
@@ -251,6 +251,12 @@ def _scene_root(path, cache_dir=None, progress=False, warnings=None) -> Path:
     return root
 
 
+def _has_photos(folder: Path) -> bool:
+    """Whether ``folder`` holds photos OpenCV reads or HEIC/HEIF photos."""
+    from .heif import heif_names  # noqa: PLC0415
+    return bool(list_images(folder) or heif_names(folder))
+
+
 def _read_format(root, images, downscale, cache_dir, progress, warnings):
     """Detect the format of ``root`` and read its frames: ``(format, frame specs, remaining
     downscale, SfM points or None, their colours, LLFF depth bounds or None, (image folder or
@@ -280,7 +286,11 @@ def _read_format(root, images, downscale, cache_dir, progress, warnings):
         image_dir, rest, why = _image_dir(root, images, downscale)
         frame_specs, bounds = llff_frames(root, image_dir, warnings)
     else:
-        photo_dir = root / images if images is not None else (root / "images" if list_images(root / "images") else root)
+        photo_dir = root / images if images is not None else (root / "images" if _has_photos(root / "images") else root)
+        from .heif import heif_names, jpeg_folder  # noqa: PLC0415
+        if heif_names(photo_dir):           # HEIC photos (an iPhone's): read from JPEG copies in the cache
+            photo_dir = jpeg_folder(photo_dir, cache_dir, progress, warnings)
+            why = "HEIC/HEIF photos converted to JPEG in the cache"
         names = photo_names(photo_dir) if photo_dir.is_dir() else []
         if not names:
             if not any(root.iterdir()):

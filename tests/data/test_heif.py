@@ -1,0 +1,119 @@
+"""HEIC / HEIF photos (an iPhone's default format): converted once to upright JPEGs in the cache
+(``tsplus_wgpu/data/heif.py``), then SfM and training read them as a folder of photos."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tsplus_wgpu.data import SceneError, load_scene
+from tsplus_wgpu.data.images import read_image_raw, resize_area
+
+pillow_heif = pytest.importorskip("pillow_heif")
+from PIL import Image  # noqa: E402
+from PIL.TiffImagePlugin import IFDRational  # noqa: E402
+
+DATA = Path(os.environ.get("TSPLUS_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
+pillow_heif.register_heif_opener()
+
+
+def _heic(path, rgb, orientation=1, focal_mm=4.2):
+    """Save ``rgb`` ([H, W, 3] float in [0, 1]) as HEIC, with EXIF make, model, focal length and
+    ``orientation`` (6: the pixels are stored turned 90 degrees anticlockwise from upright)."""
+    im = Image.fromarray((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
+    ex = im.getexif()
+    ex[0x010F], ex[0x0110], ex[0x0112] = "Apple", "iPhone 12", orientation
+    ex.get_ifd(0x8769)[0x920A] = IFDRational(int(focal_mm * 100), 100)
+    im.save(path, format="HEIF", quality=95, exif=ex.tobytes())
+
+
+def _psnr(a, b):
+    return float(-10 * np.log10(np.mean((np.asarray(a, np.float64) - b) ** 2)))
+
+
+def test_heif_photo_becomes_an_upright_jpeg_with_its_exif(tmp_path):
+    """Stored sideways with EXIF orientation 6, the JPEG holds the upright pixels (close to the
+    original turned clockwise, far from it turned the other way), orientation 1 and the focal length."""
+    from tsplus_wgpu.data.heif import convert_heif
+    from tsplus_wgpu.data.photos import camera_key
+    rng = np.random.default_rng(0)
+    img = np.kron(rng.random((12, 16, 3)), np.ones((8, 8, 1)))             # 128x96, blocks of 8 px
+    _heic(tmp_path / "a.heic", img, orientation=6, focal_mm=8.4)
+    convert_heif(tmp_path / "a.heic", tmp_path / "a.heic.jpg")
+    out = read_image_raw(tmp_path / "a.heic.jpg")
+    assert out.shape == (128, 96, 3)
+    cw, ccw = np.rot90(img, k=-1), np.rot90(img, k=1)
+    assert _psnr(out, cw) > 20 and _psnr(out, ccw) < _psnr(out, cw) - 10, (_psnr(out, cw), _psnr(out, ccw))
+    with Image.open(tmp_path / "a.heic.jpg") as im:
+        ex = im.getexif()
+        assert ex.get(0x0112) == 1 and float(ex.get_ifd(0x8769)[0x920A]) == pytest.approx(8.4)
+    assert camera_key(tmp_path / "a.heic.jpg")[1][:2] == ("Apple", "iPhone 12")
+    (tmp_path / "bad.heic").write_bytes(b"\x00\x00\x00\x18ftypheic" + bytes(200))
+    with pytest.raises(SceneError, match=r"bad\.heic: cannot be decoded as a HEIC/HEIF photo"):
+        convert_heif(tmp_path / "bad.heic", tmp_path / "bad.heic.jpg")
+    assert not (tmp_path / "bad.heic.jpg").exists()
+
+
+@pytest.mark.slow
+def test_a_folder_of_heic_photos_is_posed_like_its_jpegs(tmp_path, monkeypatch):
+    """Ten cup photos as HEIC, one damaged file and one JPEG beside them: the damaged one is
+    skipped with a warning naming it, the others registered with poses within 2 degrees of the
+    dataset's; the JPEG copies are made once and reused."""
+    if not (DATA / "cup").is_dir():
+        pytest.skip(f"shared data scene {DATA / 'cup'} not found (set TSPLUS_DATA)")
+    monkeypatch.delenv("TSPLUS_SFM_THREADS", raising=False)
+    ref = load_scene(DATA / "cup", split="none", points="none")
+    centres = np.stack([c.center for c in ref.cameras])
+    chosen = np.argsort(np.linalg.norm(centres - centres[ref.image_names.index("1.jpg")], axis=1))[:10]
+    folder = tmp_path / "iphone"
+    folder.mkdir()
+    stems = {}
+    for k, i in enumerate(chosen):
+        small = resize_area(ref.images[i], 400, 300)
+        if k == 0:           # one photo as JPEG: a folder can mix both
+            name = f"IMG_{k}.jpg"
+            Image.fromarray((small * 255 + 0.5).astype(np.uint8)).save(folder / name, quality=95)
+        else:
+            name = f"IMG_{k}.HEIC"
+            _heic(folder / name, small)
+        stems[name] = ref.image_names[i]
+    (folder / "IMG_99.HEIC").write_bytes(b"not a photo")
+    sc = load_scene(folder, split="none", points="none", cache_dir=tmp_path / "cache")
+    assert sc.format == "photos"
+    assert any("IMG_99.HEIC: cannot be decoded" in w for w in sc.warnings)
+    assert len(sc.cameras) >= 8 and all(n.endswith(".HEIC.jpg") or n == "IMG_0.jpg" for n in sc.image_names)
+    by_name = dict(zip(ref.image_names, ref.cameras))
+    orig = [by_name[stems[n[:-4] if n.endswith(".HEIC.jpg") else n]] for n in sc.image_names]
+    errs = []
+    for a in range(len(sc.cameras)):
+        for b in range(a + 1, len(sc.cameras)):
+            rel = sc.cameras[a].R @ sc.cameras[b].R.T
+            rel_ref = orig[a].R @ orig[b].R.T
+            errs.append(np.degrees(np.arccos(np.clip((np.trace(rel @ rel_ref.T) - 1) / 2, -1, 1))))
+    assert max(errs) < 2.0
+    again = load_scene(folder, split="none", points="none", cache_dir=tmp_path / "cache")
+    assert any("reused the JPEG copies of 10 HEIC/HEIF photos" in w for w in again.warnings)
+    assert any("IMG_99.HEIC: cannot be decoded" in w for w in again.warnings)
+    assert any("reused cached SfM model" in w for w in again.warnings)
+
+
+def test_heif_errors_are_one_line_naming_the_file(tmp_path, monkeypatch):
+    """Only damaged HEIF photos: the first one's error; without pillow-heif: what to install."""
+    folder = tmp_path / "broken"
+    folder.mkdir()
+    (folder / "a.heic").write_bytes(b"junk")
+    (folder / "b.heic").write_bytes(b"junk")
+    with pytest.raises(SceneError, match=r"a\.heic: cannot be decoded as a HEIC/HEIF photo"):
+        load_scene(folder, cache_dir=tmp_path / "cache")
+    import builtins
+    real_import = builtins.__import__
+
+    def no_heif(name, *a, **k):
+        if name == "pillow_heif":
+            raise ImportError(name)
+        return real_import(name, *a, **k)
+
+    monkeypatch.setattr(builtins, "__import__", no_heif)
+    with pytest.raises(SceneError, match=r"a\.heic: HEIC/HEIF photos need the pillow-heif package"):
+        load_scene(folder, cache_dir=tmp_path / "cache2")
