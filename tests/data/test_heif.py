@@ -59,7 +59,8 @@ def test_heif_photo_becomes_an_upright_jpeg_with_its_exif(tmp_path):
 def test_a_folder_of_heic_photos_is_posed_like_its_jpegs(tmp_path, monkeypatch):
     """Ten cup photos as HEIC, one damaged file and one JPEG beside them: the damaged one is
     skipped with a warning naming it, the others registered with poses within 2 degrees of the
-    dataset's; the JPEG copies are made once and reused."""
+    dataset's; the JPEG copies are made once and reused, also once the original folder has moved, and made
+    again when one is lost from the cache."""
     if not (DATA / "cup").is_dir():
         pytest.skip(f"shared data scene {DATA / 'cup'} not found (set TSPLUS_DATA)")
     monkeypatch.delenv("TSPLUS_SFM_THREADS", raising=False)
@@ -96,6 +97,14 @@ def test_a_folder_of_heic_photos_is_posed_like_its_jpegs(tmp_path, monkeypatch):
     assert any("reused the JPEG copies of 10 HEIC/HEIF photos" in w for w in again.warnings)
     assert any("IMG_99.HEIC: cannot be decoded" in w for w in again.warnings)
     assert any("reused cached SfM model" in w for w in again.warnings)
+    moved = tmp_path / "moved"          # the original folder moved away: the copies (hard links) still read
+    folder.rename(moved)
+    third = load_scene(moved, split="none", points="none", cache_dir=tmp_path / "cache")
+    assert any("reused the JPEG copies" in w for w in third.warnings) and third.image_names == sc.image_names
+    for f in (tmp_path / "cache").glob("heif_*/photos/IMG_3.HEIC.jpg"):
+        f.unlink()                      # a copy lost from the cache: made again, not reused
+    fourth = load_scene(moved, split="none", points="none", cache_dir=tmp_path / "cache")
+    assert not any("reused the JPEG copies" in w for w in fourth.warnings) and fourth.image_names == sc.image_names
 
 
 def test_heif_errors_are_one_line_naming_the_file(tmp_path, monkeypatch):

@@ -7,8 +7,8 @@ a photo viewer shows it), and written as a JPEG of quality :data:`JPEG_QUALITY` 
 original with ``.jpg`` appended (``IMG_0001.HEIC.jpg``: no clash with a JPEG of the same stem,
 and the same natural name order). The JPEG keeps the photo's EXIF, so make, model, lens and
 focal length still tell lenses apart (:func:`~tsplus_wgpu.data.photos.camera_groups`), with the
-orientation set to 1 since the pixels are now upright. The folder's other photos are linked (or
-copied where links fail). The mirror is keyed by every photo's name and bytes, written into a
+orientation set to 1 since the pixels are now upright. The folder's other photos are hard-linked
+(or copied where links fail), so the mirror outlives the original folder. The mirror is keyed by every photo's name and bytes, written into a
 temporary folder and renamed, and reused while the photos are unchanged; SfM, training and
 evaluation then read it as the folder of photos.
 """
@@ -77,10 +77,21 @@ def _key(photo_dir: Path, names: list) -> str:
 
 
 def _link_or_copy(src: Path, dst: Path) -> None:
+    """A hard link (it outlives a moved or deleted original; a symbolic link would not), else a copy."""
     try:
-        os.symlink(src.resolve(), dst)
+        os.link(src, dst)
     except OSError:
         shutil.copy2(src, dst)
+
+
+def _complete(out: Path, done: Path) -> bool:
+    """Whether the mirror ``out`` holds every photo its record ``done`` lists."""
+    try:
+        rec = json.loads(done.read_text())
+        want = list(rec["others"]) + [f"{n}.jpg" for n in rec["converted"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    return out.is_dir() and all((out / n).is_file() for n in want)
 
 
 def jpeg_folder(photo_dir, cache=None, progress: bool = False, warnings=None) -> Path:
@@ -98,7 +109,7 @@ def jpeg_folder(photo_dir, cache=None, progress: bool = False, warnings=None) ->
         warnings.append(note)
     work = root / f"heif_{_key(photo_dir, sorted(heif + others))[:16]}"
     out, done = work / "photos", work / "done.json"
-    if out.is_dir() and done.is_file():
+    if done.is_file() and _complete(out, done):
         warnings.extend(json.loads(done.read_text()).get("warnings", []))
         warnings.append(f"reused the JPEG copies of {len(heif)} HEIC/HEIF photos: {out}")
         return out
@@ -131,7 +142,9 @@ def jpeg_folder(photo_dir, cache=None, progress: bool = False, warnings=None) ->
         shutil.rmtree(tmp, ignore_errors=True)
         raise SceneError(f"{work}: cannot write the JPEG copies of the HEIC photos ({exc.strerror}); free some "
                          "disk space or set TSPLUS_CACHE to another folder") from None
-    done.write_text(json.dumps({"folder": str(photo_dir), "heif": heif, "others": others, "warnings": skipped}))
+    converted = [n for n in heif if (out / f"{n}.jpg").is_file()]
+    done.write_text(json.dumps({"folder": str(photo_dir), "heif": heif, "converted": converted, "others": others,
+                                "warnings": skipped}))
     warnings.extend(skipped)
     return out
 
