@@ -10,21 +10,23 @@ import pytest
 from tsplus_wgpu.data import SceneError, load_scene
 from tsplus_wgpu.data.images import read_image_raw, resize_area
 
-pillow_heif = pytest.importorskip("pillow_heif")
-from PIL import Image  # noqa: E402
-from PIL.TiffImagePlugin import IFDRational  # noqa: E402
+import pillow_heif       # a dependency (pyproject): missing, these tests fail rather than skip
+from PIL import Image
+from PIL.TiffImagePlugin import IFDRational
 
 DATA = Path(os.environ.get("TSPLUS_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
 pillow_heif.register_heif_opener()
 
 
-def _heic(path, rgb, orientation=1, focal_mm=4.2):
+def _heic(path, rgb, orientation=1, focal_mm=4.2, maker_note=b""):
     """Save ``rgb`` ([H, W, 3] float in [0, 1]) as HEIC, with EXIF make, model, focal length and
     ``orientation`` (6: the pixels are stored turned 90 degrees anticlockwise from upright)."""
     im = Image.fromarray((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
     ex = im.getexif()
     ex[0x010F], ex[0x0110], ex[0x0112] = "Apple", "iPhone 12", orientation
     ex.get_ifd(0x8769)[0x920A] = IFDRational(int(focal_mm * 100), 100)
+    if maker_note:
+        ex.get_ifd(0x8769)[0x927C] = maker_note
     im.save(path, format="HEIF", quality=95, exif=ex.tobytes())
 
 
@@ -57,7 +59,7 @@ def test_heif_photo_becomes_an_upright_jpeg_with_its_exif(tmp_path):
 
 @pytest.mark.slow
 def test_a_folder_of_heic_photos_is_posed_like_its_jpegs(tmp_path, monkeypatch):
-    """Ten cup photos as HEIC, one damaged file and one JPEG beside them: the damaged one is
+    """Nine cup photos as HEIC, one as JPEG and a damaged file beside them: the damaged one is
     skipped with a warning naming it, the others registered with poses within 2 degrees of the
     dataset's; the JPEG copies are made once and reused, also once the original folder has moved, and made
     again when one is lost from the cache."""
@@ -94,7 +96,7 @@ def test_a_folder_of_heic_photos_is_posed_like_its_jpegs(tmp_path, monkeypatch):
             errs.append(np.degrees(np.arccos(np.clip((np.trace(rel @ rel_ref.T) - 1) / 2, -1, 1))))
     assert max(errs) < 2.0
     again = load_scene(folder, split="none", points="none", cache_dir=tmp_path / "cache")
-    assert any("reused the JPEG copies of 10 HEIC/HEIF photos" in w for w in again.warnings)
+    assert any("reused the JPEG copies of 9 HEIC/HEIF photos" in w for w in again.warnings)
     assert any("IMG_99.HEIC: cannot be decoded" in w for w in again.warnings)
     assert any("reused cached SfM model" in w for w in again.warnings)
     moved = tmp_path / "moved"          # the original folder moved away: the copies (hard links) still read
@@ -126,3 +128,39 @@ def test_heif_errors_are_one_line_naming_the_file(tmp_path, monkeypatch):
     monkeypatch.setattr(builtins, "__import__", no_heif)
     with pytest.raises(SceneError, match=r"a\.heic: HEIC/HEIF photos need the pillow-heif package"):
         load_scene(folder, cache_dir=tmp_path / "cache2")
+
+
+def test_the_mirror_never_writes_through_a_photo_and_copies_where_links_fail(tmp_path, monkeypatch):
+    """``IMG_1.HEIC`` beside the user's own ``img_1.heic.JPG``: the copy is named ``IMG_1.HEIC.1.jpg``
+    and the user's file keeps its bytes; where hard links fail the other photos are copied; an
+    EXIF over a JPEG segment keeps the camera's tags; a killed conversion's folder is removed."""
+    from tsplus_wgpu.data import heif
+    rng = np.random.default_rng(2)
+    img = np.kron(rng.random((6, 8, 3)), np.ones((8, 8, 1)))
+    folder = tmp_path / "p"
+    folder.mkdir()
+    _heic(folder / "IMG_1.HEIC", img, maker_note=bytes(rng.integers(0, 256, 70000, dtype=np.uint8)))
+    Image.fromarray((img * 255).astype(np.uint8)).save(folder / "img_1.heic.JPG", quality=90)
+    mine = (folder / "img_1.heic.JPG").read_bytes()
+    _heic(folder / "IMG_2.heic", img)
+    assert heif.jpeg_names(["IMG_1.HEIC", "IMG_2.heic"], ["img_1.heic.JPG"]) == {
+        "IMG_1.HEIC": "IMG_1.HEIC.1.jpg", "IMG_2.heic": "IMG_2.heic.jpg"}
+    real_link = os.link
+    monkeypatch.setattr(os, "link", lambda *a: (_ for _ in ()).throw(OSError(18, "cross-device link")))
+    warnings = []
+    out = heif.jpeg_folder(folder, cache=tmp_path / "cache", warnings=warnings)
+    assert sorted(p.name for p in out.iterdir()) == ["IMG_1.HEIC.1.jpg", "IMG_2.heic.jpg", "img_1.heic.JPG"]
+    assert (folder / "img_1.heic.JPG").read_bytes() == mine and (out / "img_1.heic.JPG").read_bytes() == mine
+    assert os.stat(out / "img_1.heic.JPG").st_ino != os.stat(folder / "img_1.heic.JPG").st_ino   # a copy
+    with Image.open(out / "IMG_1.HEIC.1.jpg") as im:      # 70 KB of maker note do not fit: the camera's tags
+        ex = im.getexif()
+        assert ex.get(0x0110) == "iPhone 12" and float(ex.get_ifd(0x8769)[0x920A]) == pytest.approx(4.2)
+        assert 0x927C not in ex.get_ifd(0x8769)
+    monkeypatch.setattr(os, "link", real_link)
+    orphan = out.parent / "photos.tmp999999999"           # no such process
+    orphan.mkdir()
+    (out / "IMG_2.heic.jpg").unlink()                     # a copy lost: the mirror is made again
+    again = heif.jpeg_folder(folder, cache=tmp_path / "cache", warnings=warnings)
+    assert again == out and not orphan.exists() and not list(out.parent.glob("photos.tmp*"))
+    assert os.stat(out / "img_1.heic.JPG").st_ino == os.stat(folder / "img_1.heic.JPG").st_ino  # linked
+    assert (folder / "img_1.heic.JPG").read_bytes() == mine

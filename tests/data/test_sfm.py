@@ -178,8 +178,9 @@ def test_camera_groups_by_size_and_exif_lens(tmp_path):
 
 def test_photos_of_two_lenses_get_a_camera_each(tmp_path, monkeypatch):
     """A phone's photos through two lenses in turn (same size, EXIF 4.2 and 8.4 mm) get a camera
-    per lens, with focal lengths a factor 2 apart, instead of one focal length for both; one
-    lens keeps one camera and the cache key the folder had before lenses were told apart."""
+    per lens, with focal lengths a factor 2 apart, instead of one focal length for both; so do two
+    phones of one focal length, and photos without EXIF at two sizes (a camera a size, not a
+    camera a photo); one lens keeps one camera and the cache key the folder had before."""
     import sqlite3
     from tsplus_wgpu.data import photos
     from tsplus_wgpu.data.sfm import _fingerprint
@@ -193,23 +194,28 @@ def test_photos_of_two_lenses_get_a_camera_each(tmp_path, monkeypatch):
     monkeypatch.setattr(photos, "_extract_and_match", extract_then_stop)
     rng = np.random.default_rng(1)
     img = np.kron(rng.random((30, 40, 3)), np.ones((8, 8, 1)))          # 320x240, blocky texture
-    for case, focal in [("lenses", lambda i: 4.2 if i % 2 == 0 else 8.4), ("one", lambda i: None)]:
+    cases = {"lenses": lambda i, im: _exif_photo(*im, 4.2 if i % 2 == 0 else 8.4),
+             "phones": lambda i, im: _exif_photo(*im, 4.2, model="iPhone 12" if i % 2 == 0 else "Pixel 7"),
+             "sizes": lambda i, im: _exif_photo(im[0], im[1][: 240 if i % 2 == 0 else 200]),
+             "one": lambda i, im: _exif_photo(*im)}
+    names = [f"IMG_{i}.jpg" for i in range(6)]
+    for case, make in cases.items():
         folder = tmp_path / case
         folder.mkdir()
-        names = [f"IMG_{i}.jpg" for i in range(6)]
         for i, n in enumerate(names):
-            _exif_photo(folder / n, np.roll(img, 8 * i, axis=1), focal(i))
+            make(i, (folder / n, np.roll(img, 8 * i, axis=1)))
         with pytest.raises(SceneError, match="SfM failed"):
             photos.run_photos_sfm(folder, names, cache=tmp_path / "cache", progress=False)
         with sqlite3.connect(dbs[-1]) as con:
             cams = {cid: np.frombuffer(p)[0] for cid, p in con.execute("select camera_id, params from cameras")}
             by_image = dict(con.execute("select name, camera_id from images"))
-        if case == "lenses":
-            assert len(cams) == 2
-            wide = {by_image[n] for n in names[0::2]}
-            tele = {by_image[n] for n in names[1::2]}
-            assert len(wide) == len(tele) == 1 and wide != tele
-            assert cams[tele.pop()] == pytest.approx(2 * cams[wide.pop()], rel=1e-6)
-        else:
-            assert len(cams) == 1 and len(by_image) == 6
+        assert len(by_image) == 6, case
+        if case == "one":
+            assert len(cams) == 1
             assert (tmp_path / "cache" / f"sfm_{_fingerprint([folder / n for n in names], '')[:16]}").is_dir()
+            continue
+        assert len(cams) == 2, case
+        even, odd = {by_image[n] for n in names[0::2]}, {by_image[n] for n in names[1::2]}
+        assert len(even) == len(odd) == 1 and even != odd, case
+        if case == "lenses":
+            assert cams[odd.pop()] == pytest.approx(2 * cams[even.pop()], rel=1e-6)

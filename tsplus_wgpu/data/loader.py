@@ -288,6 +288,7 @@ def _read_format(root, images, downscale, cache_dir, progress, warnings):
     else:
         photo_dir = root / images if images is not None else (root / "images" if _has_photos(root / "images") else root)
         from .heif import heif_names, jpeg_folder  # noqa: PLC0415
+        shown = photo_dir
         if heif_names(photo_dir):           # HEIC photos (an iPhone's): read from JPEG copies in the cache
             photo_dir = jpeg_folder(photo_dir, cache_dir, progress, warnings)
             why = "HEIC/HEIF photos converted to JPEG in the cache"
@@ -306,7 +307,7 @@ def _read_format(root, images, downscale, cache_dir, progress, warnings):
             why = (f"the sharpest frame of each of {len(m.get('frames', names))} windows of the "
                    f"{m.get('frames_decoded', '?')} frames of {Path(m.get('video', '?')).name}")
         model_dir = run_photos_sfm(photo_dir, names, cache=cache_dir, progress=progress, warnings=warnings,
-                                   sequential=fmt == "video")
+                                   sequential=fmt == "video", shown=shown)
         rest = downscale
         frame_specs, pts, cols, _, rec = colmap_frames(root, model_dir, photo_dir, warnings)
     if why.startswith("images/ is missing"):

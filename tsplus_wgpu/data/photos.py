@@ -50,12 +50,15 @@ def ordered_pairs(names: list, overlap: int = SEQUENTIAL_OVERLAP) -> list:
 
 
 def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = True, warnings=None,
-                   sequential: bool = False):
+                   sequential: bool = False, shown=None):
     """Incremental SfM on the photos ``names`` inside ``photo_dir``.
 
     ``sequential``: the photos are the frames of a video, in time order (:mod:`.video`), matched
     with their neighbours in time (:data:`SEQUENTIAL_OVERLAP`). Otherwise every pair is matched,
     or for more than :data:`ORDERED_PHOTOS_MIN` photos the pairs of their name order first.
+
+    ``shown``: the folder the errors name instead of ``photo_dir`` (the user's own, when
+    ``photo_dir`` is a copy in the cache: :mod:`.heif`).
 
     Returns:
         the folder of the resulting COLMAP model (``.../sparse/0``), cached and reused while the
@@ -69,15 +72,16 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     pycolmap.set_random_seed(0)
     warnings = warnings if warnings is not None else []
     photo_dir = Path(photo_dir)
+    label = Path(shown) if shown is not None else photo_dir
     if len(names) < 3:
-        raise SceneError(f"{photo_dir}: {len(names)} photo(s) found, SfM needs at least 3 overlapping photos; add more")
+        raise SceneError(f"{label}: {len(names)} photo(s) found, SfM needs at least 3 overlapping photos; add more")
     root, note = cache_root(None, cache)
     if note:
         warnings.append(note)
     ordered = not sequential and len(names) > ORDERED_PHOTOS_MIN
     mode = f"sequential{SEQUENTIAL_OVERLAP}" if sequential else (f"ordered{SEQUENTIAL_OVERLAP}" if ordered else "")
     groups = camera_groups(photo_dir, names)
-    if len(groups) > 1:      # one camera a group (before: one a photo); one group keeps its old key
+    if len(groups) > 1:      # a camera a group (before: one a photo of another size); one group keeps its key
         mode += f"cameras{len(groups)}"
     work = root / f"sfm_{_fingerprint([photo_dir / n for n in names], mode)[:16]}"
     model_dir = work / "sparse" / "0"
@@ -96,18 +100,18 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
                      f"SfM on {len(names)} photos", weighted=True)
     try:
         best = _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, warnings,
-                             len(groups))
+                             groups if len(groups) > 1 else None)
     except SceneError:
         raise
     except Exception as exc:
-        raise SceneError(f"{photo_dir}: SfM failed ({str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}); "
+        raise SceneError(f"{label}: SfM failed ({str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}); "
                          "take more overlapping, sharp photos") from None
     finally:
         prog.close()
     nreg = best.num_reg_images() if best is not None else 0
     need = max(3, (len(names) + 1) // 2)
     if nreg < need:
-        raise SceneError(f"{photo_dir}: SfM registered only {nreg} of {len(names)} photos (need {need}); "
+        raise SceneError(f"{label}: SfM registered only {nreg} of {len(names)} photos (need {need}); "
                          "take more overlapping, sharp photos with texture, or remove the unrelated ones")
     if nreg < len(names):
         warnings.append(f"SfM registered {nreg} of {len(names)} photos; the others are skipped")
@@ -122,23 +126,23 @@ def _pair_count(names, in_order: bool) -> int:
     return len(ordered_pairs(names)) if in_order else len(names) * (len(names) - 1) // 2
 
 
-def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, warnings, cameras=1):
+def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, warnings, groups=None):
     """Features, matches and incremental mapping of :func:`run_photos_sfm` on photos taken by
-    ``cameras`` cameras (:func:`camera_groups`): the reconstruction that registers the most
-    photos (None when there is none)."""
+    one camera, or by the cameras of ``groups`` (:func:`camera_groups`; a camera each): the
+    reconstruction that registers the most photos (None when there is none)."""
     db = work / "database.db"
     prog.stage("extracting SIFT features", 0)
     small = max(max(read_image_size(photo_dir / n)) for n in names) < 1200
-    # one camera for the photos of one device and lens (the usual capture). Several: COLMAP's own
-    # mode, a camera for each image size and EXIF focal length (two lenses' photos under one
-    # camera would leave one focal length for both; a camera a photo would leave each its own)
-    mode = pycolmap.CameraMode.SINGLE if cameras == 1 else pycolmap.CameraMode.AUTO
+    # one camera for the photos of one device and lens (the usual capture); several: one a group,
+    # each group's features extracted in a call of its own (two lenses' photos under one camera
+    # would leave one focal length for both; a camera a photo would leave each its own to solve)
+    mode = pycolmap.CameraMode.SINGLE
     # a pair list cannot hold names with spaces: COLMAP's own sequential order (by name) for those
     listed = ordered and not any(c.isspace() for n in names for c in n)
     pairs = ordered_pairs(names) if listed else None
     _extract_and_match(pycolmap, db, photo_dir, names, mode, "SIMPLE_RADIAL", progress=prog, small_images=small,
                        sequential=sequential or (ordered and not listed), pairs=pairs,
-                       extract_units=len(names) * STEP_SECONDS["image"])
+                       extract_units=len(names) * STEP_SECONDS["image"], groups=groups)
     n_pairs = _pair_count(names, sequential or ordered)
     best = _mapping(pycolmap, db, photo_dir, work, prog, n_pairs * STEP_SECONDS["pair"])
     nreg = best.num_reg_images() if best is not None else 0

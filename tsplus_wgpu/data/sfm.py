@@ -176,7 +176,11 @@ def _fingerprint(paths, mode: str = "") -> str:
 
 def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, camera_model: str,
                        pairs=None, max_image_size: int = 1600, progress: _Progress | None = None,
-                       small_images: bool = False, sequential: bool = False, extract_units: float = 1):
+                       small_images: bool = False, sequential: bool = False, extract_units: float = 1,
+                       groups=None):
+    """SIFT features of the images ``names`` into the database ``db`` (``groups``: lists of them
+    extracted one call each, so that ``CameraMode.SINGLE`` gives each group its own camera),
+    then matches: ``pairs``, COLMAP's ``sequential`` order, or every pair."""
     ext = pycolmap.FeatureExtractionOptions()
     ext.max_image_size = int(max_image_size)
     ext.num_threads = sfm_threads()
@@ -185,8 +189,9 @@ def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, ca
         ext.sift.peak_threshold = 0.002
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
-    pycolmap.extract_features(db, img_dir, image_names=list(names), camera_mode=camera_mode,
-                              reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
+    for part in groups or [names]:
+        pycolmap.extract_features(db, img_dir, image_names=list(part), camera_mode=camera_mode,
+                                  reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
     if progress:
         progress.stage("matching", extract_units)
     mopt = pycolmap.FeatureMatchingOptions()
