@@ -46,7 +46,7 @@ def add_parser(sub):
                     "renders, log.jsonl, config.json and checkpoint.npz (--resume continues it bit-identically). "
                     "--normals DIR adds method.md's optional normal loss.")
     p.add_argument("scene", nargs="?", default="procedural:small",
-                   help="scene folder (COLMAP, transforms.json, LLFF or a folder of photos), a video file (its 100 "
+                   help="scene folder (COLMAP, transforms.json, LLFF or a folder of photos: JPEG, PNG, HEIC, ...), a video file (its 100 "
                         "sharpest frames; `tsplus frames` picks another number), or procedural[:tiny|small|demo] "
                         "(default procedural:small)")
     p.add_argument("--out", required=True, help="output folder")
