@@ -192,3 +192,32 @@ def test_the_frames_command(blurry_video, tmp_path, capsys):
     assert len(list(out.glob("*.jpg"))) == 10                                                      # untouched
     assert main(["frames", str(video), "--out", str(out), "--count", "5", "--no-progress", "--overwrite"]) == 0
     assert len(list(out.glob("*.jpg"))) == 5 and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def _portrait_source_frame(i):
+    """Frame ``i`` of ``fixtures/portrait_rotate90.mp4`` as it was drawn (160x120, landscape)."""
+    import cv2
+    img = np.zeros((120, 160, 3), np.uint8)
+    img[:] = (40, 80, 160)
+    cv2.rectangle(img, (10 + i * 5, 10), (60 + i * 5, 40), (255, 255, 255), -1)
+    cv2.putText(img, "UP", (70, 100), cv2.FONT_HERSHEY_SIMPLEX, 1, (0, 255, 0), 2)
+    return img[:, :, ::-1].astype(np.float64) / 255.0
+
+
+def test_a_phone_video_stored_sideways_gives_upright_frames(tmp_path):
+    """A phone's portrait video is stored landscape with a rotation in its metadata. The fixture
+    (2,965 bytes): 12 frames drawn by ``_portrait_source_frame``, encoded by ``ffmpeg -framerate 12
+    -i f%02d.png -c:v libx264 -pix_fmt yuv420p plain.mp4``, then tagged by ``ffmpeg -i plain.mp4
+    -c copy -metadata:s:v:0 rotate=90``, which players (and ffmpeg itself) show turned a quarter
+    anticlockwise. The frames come out as they show it: 120x160, the drawing turned the same way."""
+    from tsplus_wgpu.data.images import read_image_raw
+    video = Path(__file__).parent / "fixtures" / "portrait_rotate90.mp4"
+    m = extract_frames(video, tmp_path / "frames", count=3)
+    assert m["frames_decoded"] == 12 and len(m["frames"]) == 3
+    for name, i in zip(m["frames"], m["indices"]):
+        img = read_image_raw(tmp_path / "frames" / name)
+        assert img.shape == (160, 120, 3)
+        src = _portrait_source_frame(i)
+        shown, other = np.rot90(src, k=1), np.rot90(src, k=-1)
+        err, err_other = np.abs(img - shown).mean(), np.abs(img - other).mean()
+        assert err < 0.03 and err_other > 4 * err, (err, err_other)
