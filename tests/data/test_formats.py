@@ -296,7 +296,30 @@ def test_missing_path_and_unknown_folder(tmp_path):
     with pytest.raises(SceneError, match="no such file"):
         load_scene(tmp_path / "nope")
     (tmp_path / "notes.txt").write_text("hello")
-    with pytest.raises(SceneError, match="no images and no camera model"):
+    with pytest.raises(SceneError, match="no photos and no camera model in it.*; point to a scene folder"):
+        load_scene(tmp_path)
+
+
+def test_a_folder_without_a_scene_points_at_what_it_holds(tmp_path):
+    """A phone's DCIM folder (photos two levels down), several photo folders, a video: the error
+    names where the photos are, or the video, instead of only saying there is no scene."""
+    from tsplus_wgpu.data import detect_format
+    from tsplus_wgpu.data.images import write_image
+    one = tmp_path / "DCIM" / "100APPLE"
+    one.mkdir(parents=True)
+    for i in range(3):
+        write_image(one / f"IMG_{i}.jpg", np.full((8, 8, 3), 0.5))
+    (tmp_path / "DCIM" / "100APPLE" / "IMG_9.HEIC").write_bytes(b"x")
+    for call in (load_scene, detect_format):
+        with pytest.raises(SceneError, match=rf"its subfolder DCIM/100APPLE holds 4 photos: pass {one}$"):
+            call(tmp_path)
+    two = tmp_path / "DCIM" / "101APPLE"
+    two.mkdir()
+    write_image(two / "IMG_5.png", np.full((8, 8, 3), 0.5))
+    with pytest.raises(SceneError, match=r"its subfolders hold photos: 100APPLE \(4\), 101APPLE \(1\); pass the one"):
+        load_scene(tmp_path / "DCIM")
+    (tmp_path / "walk.MOV").write_bytes(b"x")
+    with pytest.raises(SceneError, match=r"it holds a video: pass the video file itself \(.*walk\.MOV\)"):
         load_scene(tmp_path)
 
 

@@ -106,8 +106,7 @@ def detect_format(path) -> str:
         return "llff"
     if _has_photos(root / "images") or _has_photos(root):
         return "video" if is_frames_folder(root / "images" if list_images(root / "images") else root) else "photos"
-    raise SceneError(f"{root}: no images and no camera model found (expected COLMAP sparse/, "
-                     "transforms.json, poses_bounds.npy or photos); point to a scene folder")
+    raise _no_scene(root)
 
 
 def load_scene(path=None, images=None, downscale=1, background=None, split="auto", *,
@@ -251,6 +250,37 @@ def _scene_root(path, cache_dir=None, progress=False, warnings=None) -> Path:
     return root
 
 
+def _no_scene(root: Path) -> SceneError:
+    """The error for a folder with no scene in it, pointing at what it does hold: a video, or
+    subfolders of photos (a phone's ``DCIM/100APPLE``), two levels down at most."""
+    from .video import is_video  # noqa: PLC0415
+    base = (f"{root}: no photos and no camera model in it (expected photos, COLMAP sparse/, transforms.json or "
+            "poses_bounds.npy)")
+    try:
+        videos = sorted(p.name for p in root.iterdir() if p.is_file() and is_video(p))
+        subs = sorted((p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")), key=str)
+        subs += sorted((q for p in subs for q in p.iterdir() if q.is_dir() and not q.name.startswith(".")), key=str)
+        held = [(d, _count_photos(d)) for d in subs[:200]]
+    except OSError:
+        return SceneError(f"{base}; point to a scene folder")
+    held = [(d, n) for d, n in held if n]
+    if videos:
+        return SceneError(f"{base}; it holds a video: pass the video file itself ({root / videos[0]})")
+    if len(held) == 1:
+        return SceneError(f"{base}; its subfolder {held[0][0].relative_to(root)} holds {held[0][1]} photos: pass "
+                          f"{held[0][0]}")
+    if held:
+        listed = ", ".join(f"{d.relative_to(root)} ({n})" for d, n in held[:4]) + (", ..." if len(held) > 4 else "")
+        return SceneError(f"{base}; its subfolders hold photos: {listed}; pass the one of this scene, or put the "
+                          "scene's photos into one folder")
+    return SceneError(f"{base}; point to a scene folder")
+
+
+def _count_photos(folder: Path) -> int:
+    from .heif import heif_names  # noqa: PLC0415
+    return len(list_images(folder)) + len(heif_names(folder))
+
+
 def _has_photos(folder: Path) -> bool:
     """Whether ``folder`` holds photos OpenCV reads or HEIC/HEIF photos."""
     from .heif import heif_names  # noqa: PLC0415
@@ -297,8 +327,7 @@ def _read_format(root, images, downscale, cache_dir, progress, warnings):
             if not any(root.iterdir()):
                 raise SceneError(f"{root}: the folder is empty; put photos (or a COLMAP / transforms.json / "
                                  "LLFF scene) in it")
-            raise SceneError(f"{root}: no images and no camera model found (expected COLMAP sparse/, "
-                             "transforms.json, poses_bounds.npy or photos); point to a scene folder")
+            raise _no_scene(root)
         from .video import is_frames_folder, read_manifest  # noqa: PLC0415
         fmt = "video" if is_frames_folder(photo_dir) else "photos"
         image_dir = photo_dir
