@@ -219,3 +219,36 @@ def test_photos_of_two_lenses_get_a_camera_each(tmp_path, monkeypatch):
         assert len(even) == len(odd) == 1 and even != odd, case
         if case == "lenses":
             assert cams[odd.pop()] == pytest.approx(2 * cams[even.pop()], rel=1e-6)
+
+
+def test_the_sfm_bar_moves_during_a_long_silent_call():
+    """Inside ``creep`` (pycolmap's extraction and matching report nothing while they run) the bar
+    moves on by itself at the pace of the work before, never past 90 % of the block's share, and
+    the block's end adds the rest; an error inside stops it without adding the rest."""
+    import time
+    from tsplus_wgpu.data.sfm import _Progress
+    prog = _Progress(True, 100.0, "test", weighted=True)
+
+    def inside(units, seconds):
+        seen = []
+        with prog.creep(units, tick=0.01):
+            t = time.time()
+            while time.time() - t < seconds:
+                seen.append(prog.bar.n)
+                time.sleep(0.01)
+        return seen
+
+    seen = inside(10.0, 1.0)                  # nothing done before: a unit a second
+    assert 0 < max(seen) <= 1.5 and prog.bar.n == pytest.approx(10.0)
+    prog.t0 = time.time() - 2.0               # 10 units in 2 s: 0.2 s a unit, so 3 units need 0.6 s
+    seen = inside(3.0, 1.0)
+    assert max(seen) == pytest.approx(10.0 + 0.9 * 3.0) and prog.bar.n == pytest.approx(13.0)
+    with pytest.raises(RuntimeError):
+        with prog.creep(50.0, tick=0.01):
+            raise RuntimeError("pycolmap failed")
+    assert prog.bar.n < 13.5
+    prog.close()
+    quiet = _Progress(False, 10.0, "off")
+    with quiet.creep(5.0, tick=0.01):
+        time.sleep(0.05)
+    assert quiet.bar is None

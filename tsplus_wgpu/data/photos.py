@@ -142,9 +142,10 @@ def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, w
     pairs = ordered_pairs(names) if listed else None
     _extract_and_match(pycolmap, db, photo_dir, names, mode, "SIMPLE_RADIAL", progress=prog, small_images=small,
                        sequential=sequential or (ordered and not listed), pairs=pairs,
-                       extract_units=len(names) * STEP_SECONDS["image"], groups=groups)
+                       extract_units=len(names) * STEP_SECONDS["image"], groups=groups,
+                       match_units=_pair_count(names, sequential or ordered) * STEP_SECONDS["pair"])
     n_pairs = _pair_count(names, sequential or ordered)
-    best = _mapping(pycolmap, db, photo_dir, work, prog, n_pairs * STEP_SECONDS["pair"])
+    best = _mapping(pycolmap, db, photo_dir, work, prog)
     nreg = best.num_reg_images() if best is not None else 0
     if ordered and nreg < ORDERED_MIN_SHARE * len(names):
         warnings.append(f"SfM of the photos in name order registered {nreg} of {len(names)}: every pair matched "
@@ -154,17 +155,17 @@ def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, w
         prog.stage("matching every pair", 0)
         mopt = pycolmap.FeatureMatchingOptions()
         mopt.num_threads = sfm_threads()
-        pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)
+        with prog.creep(rest * STEP_SECONDS["pair"]):
+            pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)
         shutil.rmtree(work / "sparse_all", ignore_errors=True)
-        best = _mapping(pycolmap, db, photo_dir, work, prog, rest * STEP_SECONDS["pair"])
+        best = _mapping(pycolmap, db, photo_dir, work, prog)
     return best
 
 
-def _mapping(pycolmap, db, photo_dir, work, prog, matched: float):
-    """pycolmap's incremental mapping of the matched database ``db`` (the progress bar advanced
-    by ``matched``, the matching's share, first): the reconstruction that registers the most
-    images, or None."""
-    prog.stage("incremental mapping", matched)
+def _mapping(pycolmap, db, photo_dir, work, prog):
+    """pycolmap's incremental mapping of the matched database ``db``: the reconstruction that
+    registers the most images, or None."""
+    prog.stage("incremental mapping", 0)
     opts = pycolmap.IncrementalPipelineOptions()
     opts.num_threads = sfm_threads()
     opts.random_seed = 0

@@ -16,6 +16,7 @@ import os
 import shutil
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -96,6 +97,7 @@ class _Progress:
         self.enabled = enabled
         self.bar = None
         self.t0 = time.time()
+        self._lock = threading.Lock()
         if enabled:
             try:
                 from tqdm import tqdm  # noqa: PLC0415
@@ -108,8 +110,9 @@ class _Progress:
         if not self.enabled:
             return
         if self.bar is not None:
-            self.bar.set_postfix_str(text)
-            self.bar.update(advance)
+            with self._lock:
+                self.bar.set_postfix_str(text)
+                self.bar.update(advance)
         else:  # pragma: no cover
             print(f"  {text} ({time.time() - self.t0:.0f}s)", file=sys.stderr)
 
@@ -119,6 +122,19 @@ class _Progress:
             self.bar.total += more
             self.bar.refresh()
 
+    def creep(self, units: float, tick: float = 1.0):
+        """A context for one long call that reports nothing (pycolmap's feature extraction, its
+        matching): inside it the bar moves on by itself, at the pace the work before went (units
+        are estimated seconds of the reference machine on a ``weighted`` bar; one a second
+        before any), towards ``units`` more but never past 90 % of them, so it keeps its time
+        left; leaving it adds the rest. Without a bar, nothing happens."""
+        return _Creep(self, units, tick)
+
+    def _advance(self, units: float):
+        if self.bar is not None and units > 0:
+            with self._lock:
+                self.bar.update(units)
+
     def note(self, text: str):
         if self.enabled and self.bar is not None:
             self.bar.set_postfix_str(text)
@@ -127,6 +143,42 @@ class _Progress:
     def close(self):
         if self.bar is not None:
             self.bar.close()
+
+
+class _Creep:
+    """:meth:`_Progress.creep`: a thread that advances the bar while the block runs."""
+
+    def __init__(self, prog: _Progress, units: float, tick: float):
+        self.prog, self.units, self.tick = prog, float(units), float(tick)
+        self.moved, self.stop, self.thread = 0.0, threading.Event(), None
+
+    def __enter__(self):
+        bar = self.prog.bar
+        if bar is None or self.units <= 0:
+            return self
+        done = bar.n
+        spent = time.time() - self.prog.t0
+        pace = spent / done if done > 0 and spent > 0 else 1.0      # seconds a unit, so far
+        t0 = time.time()
+
+        def run():
+            while not self.stop.wait(self.tick):
+                target = min(0.9 * self.units, (time.time() - t0) / pace)
+                if target > self.moved:
+                    self.prog._advance(target - self.moved)
+                    self.moved = target
+
+        self.thread = threading.Thread(target=run, name="sfm-progress", daemon=True)
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        if self.thread is not None:
+            self.stop.set()
+            self.thread.join()
+        if exc[0] is None:
+            self.prog._advance(self.units - self.moved)
+        return False
 
 
 def cache_root(scene_dir=None, override=None) -> tuple[Path, str | None]:
@@ -177,10 +229,12 @@ def _fingerprint(paths, mode: str = "") -> str:
 def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, camera_model: str,
                        pairs=None, max_image_size: int = 1600, progress: _Progress | None = None,
                        small_images: bool = False, sequential: bool = False, extract_units: float = 1,
-                       groups=None):
+                       groups=None, match_units: float = 0):
     """SIFT features of the images ``names`` into the database ``db`` (``groups``: lists of them
     extracted one call each, so that ``CameraMode.SINGLE`` gives each group its own camera),
-    then matches: ``pairs``, COLMAP's ``sequential`` order, or every pair."""
+    then matches: ``pairs``, COLMAP's ``sequential`` order, or every pair. ``progress`` moves on
+    by ``extract_units`` over the extraction and ``match_units`` over the matching
+    (:meth:`_Progress.creep`)."""
     ext = pycolmap.FeatureExtractionOptions()
     ext.max_image_size = int(max_image_size)
     ext.num_threads = sfm_threads()
@@ -189,11 +243,24 @@ def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, ca
         ext.sift.peak_threshold = 0.002
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
-    for part in groups or [names]:
-        pycolmap.extract_features(db, img_dir, image_names=list(part), camera_mode=camera_mode,
-                                  reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
+    with progress.creep(extract_units) if progress else _nothing():
+        for part in groups or [names]:
+            pycolmap.extract_features(db, img_dir, image_names=list(part), camera_mode=camera_mode,
+                                      reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
     if progress:
-        progress.stage("matching", extract_units)
+        progress.stage("matching", 0)
+    with progress.creep(match_units) if progress and match_units else _nothing():
+        _match(pycolmap, db, sequential, pairs)
+
+
+def _nothing():
+    import contextlib  # noqa: PLC0415
+    return contextlib.nullcontext()
+
+
+def _match(pycolmap, db, sequential, pairs):
+    """pycolmap's matching of the features in ``db``: COLMAP's ``sequential`` order, the image
+    ``pairs`` given, or every pair."""
     mopt = pycolmap.FeatureMatchingOptions()
     mopt.num_threads = sfm_threads()
     if sequential:
