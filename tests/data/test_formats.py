@@ -300,9 +300,10 @@ def test_missing_path_and_unknown_folder(tmp_path):
         load_scene(tmp_path)
 
 
-def test_a_folder_without_a_scene_points_at_what_it_holds(tmp_path):
-    """A phone's DCIM folder (photos two levels down), several photo folders, a video: the error
-    names where the photos are, or the video, instead of only saying there is no scene."""
+def test_a_folder_without_a_scene_points_at_what_it_holds(tmp_path, tiny):
+    """A phone's DCIM folder (photos two levels down), several photo folders, a folder of scenes,
+    a video (a Mac's hidden ``._`` copy ignored): the error names where the photos, scenes or the
+    video are, instead of only saying there is no scene."""
     from tsplus_wgpu.data import detect_format
     from tsplus_wgpu.data.images import write_image
     one = tmp_path / "DCIM" / "100APPLE"
@@ -311,16 +312,22 @@ def test_a_folder_without_a_scene_points_at_what_it_holds(tmp_path):
         write_image(one / f"IMG_{i}.jpg", np.full((8, 8, 3), 0.5))
     (tmp_path / "DCIM" / "100APPLE" / "IMG_9.HEIC").write_bytes(b"x")
     for call in (load_scene, detect_format):
-        with pytest.raises(SceneError, match=rf"its subfolder DCIM/100APPLE holds 4 photos: pass {one}$"):
+        with pytest.raises(SceneError, match=rf"; its subfolder DCIM/100APPLE holds 4 photos: pass {one}$"):
             call(tmp_path)
     two = tmp_path / "DCIM" / "101APPLE"
     two.mkdir()
     write_image(two / "IMG_5.png", np.full((8, 8, 3), 0.5))
-    with pytest.raises(SceneError, match=r"its subfolders hold photos: 100APPLE \(4\), 101APPLE \(1\); pass the one"):
+    with pytest.raises(SceneError, match=r"its subfolders hold 100APPLE \(4 photos\), 101APPLE \(1 photo\): pass"):
         load_scene(tmp_path / "DCIM")
+    (tmp_path / "._walk.MOV").write_bytes(b"x")
     (tmp_path / "walk.MOV").write_bytes(b"x")
-    with pytest.raises(SceneError, match=r"it holds a video: pass the video file itself \(.*walk\.MOV\)"):
+    with pytest.raises(SceneError, match=r"it holds a video: pass the video file itself \(.*/walk\.MOV\); or its sub"):
         load_scene(tmp_path)
+    scenes = tmp_path / "datasets"                       # scene folders: the scene, not its images/
+    write_colmap_text(scenes / "cup", tiny)
+    with pytest.raises(SceneError, match=rf"its subfolder cup holds a scene: pass {scenes / 'cup'}$"):
+        load_scene(scenes)
+
 
 
 def test_zero_points_falls_back_with_warning(tmp_path, tiny):

@@ -157,10 +157,12 @@ def test_the_mirror_never_writes_through_a_photo_and_copies_where_links_fail(tmp
         assert ex.get(0x0110) == "iPhone 12" and float(ex.get_ifd(0x8769)[0x920A]) == pytest.approx(4.2)
         assert 0x927C not in ex.get_ifd(0x8769)
     monkeypatch.setattr(os, "link", real_link)
-    orphan = out.parent / "photos.tmp999999999"           # no such process
+    orphan = out.parent / (heif._tmp_name().rsplit("-", 1)[0] + "-999999999")   # this machine, no such process
     orphan.mkdir()
+    elsewhere = out.parent / "photos.tmp-another-machine-1"                     # another machine's: kept
+    elsewhere.mkdir()
     (out / "IMG_2.heic.jpg").unlink()                     # a copy lost: the mirror is made again
     again = heif.jpeg_folder(folder, cache=tmp_path / "cache", warnings=warnings)
-    assert again == out and not orphan.exists() and not list(out.parent.glob("photos.tmp*"))
+    assert again == out and not orphan.exists() and list(out.parent.glob("photos.tmp*")) == [elsewhere]
     assert os.stat(out / "img_1.heic.JPG").st_ino == os.stat(folder / "img_1.heic.JPG").st_ino  # linked
     assert (folder / "img_1.heic.JPG").read_bytes() == mine

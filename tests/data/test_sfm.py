@@ -222,33 +222,42 @@ def test_photos_of_two_lenses_get_a_camera_each(tmp_path, monkeypatch):
 
 
 def test_the_sfm_bar_moves_during_a_long_silent_call():
-    """Inside ``creep`` (pycolmap's extraction and matching report nothing while they run) the bar
-    moves on by itself at the pace of the work before, never past 90 % of the block's share, and
-    the block's end adds the rest; an error inside stops it without adding the rest."""
+    """Inside ``creep`` (pycolmap's extraction and matching report nothing while they run) a
+    weighted bar moves on by itself at the pace of the work before, never ahead of it and never
+    past 90 % of the block's share; the block's end adds the rest, an error inside adds nothing,
+    and a bar of whole steps does not creep."""
     import time
     from tsplus_wgpu.data.sfm import _Progress
     prog = _Progress(True, 100.0, "test", weighted=True)
 
-    def inside(units, seconds):
-        seen = []
+    def inside(units, pace, until):
+        """(seconds in, bar) samples until the bar passes ``until`` (at most 20 s)."""
+        seen, start, t = [], prog.bar.n, time.time()     # the creep's clock starts after t
         with prog.creep(units, tick=0.01):
-            t = time.time()
-            while time.time() - t < seconds:
-                seen.append(prog.bar.n)
+            while time.time() - t < 20 and prog.bar.n - start < until:
+                n = prog.bar.n - start                   # read before the clock: never ahead by a race
+                seen.append((time.time() - t, n))
                 time.sleep(0.01)
-        return seen
+            n = prog.bar.n - start
+            seen.append((time.time() - t, n))
+        assert all(n <= dt / pace + 1e-9 for dt, n in seen)       # never ahead of the pace
+        return max(n for _, n in seen)
 
-    seen = inside(10.0, 1.0)                  # nothing done before: a unit a second
-    assert 0 < max(seen) <= 1.5 and prog.bar.n == pytest.approx(10.0)
-    prog.t0 = time.time() - 2.0               # 10 units in 2 s: 0.2 s a unit, so 3 units need 0.6 s
-    seen = inside(3.0, 1.0)
-    assert max(seen) == pytest.approx(10.0 + 0.9 * 3.0) and prog.bar.n == pytest.approx(13.0)
+    assert inside(10.0, 1.0, 0.3) >= 0.3                           # nothing before: a unit a second
+    assert prog.bar.n == pytest.approx(10.0)
+    prog.t0 = time.time() - 2.0                                    # 10 units in 2 s: 0.2 s a unit
+    assert inside(3.0, 0.2, 2.7 - 1e-9) == pytest.approx(2.7)     # the cap: 90 % of 3
+    assert prog.bar.n == pytest.approx(13.0)
     with pytest.raises(RuntimeError):
         with prog.creep(50.0, tick=0.01):
             raise RuntimeError("pycolmap failed")
     assert prog.bar.n < 13.5
+    prog.finish()
+    assert prog.bar.n == pytest.approx(100.0)
     prog.close()
-    quiet = _Progress(False, 10.0, "off")
-    with quiet.creep(5.0, tick=0.01):
-        time.sleep(0.05)
-    assert quiet.bar is None
+    steps = _Progress(True, 4, "steps")
+    with steps.creep(1.0, tick=0.01):
+        time.sleep(0.1)
+        assert steps.bar.n == 0
+    assert steps.bar.n == 1
+    steps.close()

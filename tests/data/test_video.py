@@ -204,20 +204,23 @@ def _portrait_source_frame(i):
     return img[:, :, ::-1].astype(np.float64) / 255.0
 
 
-def test_a_phone_video_stored_sideways_gives_upright_frames(tmp_path):
-    """A phone's portrait video is stored landscape with a rotation in its metadata. The fixture
-    (2,965 bytes): 12 frames drawn by ``_portrait_source_frame``, encoded by ``ffmpeg -framerate 12
-    -i f%02d.png -c:v libx264 -pix_fmt yuv420p plain.mp4``, then tagged by ``ffmpeg -i plain.mp4
-    -c copy -metadata:s:v:0 rotate=90``, which players (and ffmpeg itself) show turned a quarter
-    anticlockwise. The frames come out as they show it: 120x160, the drawing turned the same way."""
+@pytest.mark.parametrize("tag, turn", [(270, -1), (90, 1)])
+def test_a_phone_video_stored_sideways_gives_upright_frames(tmp_path, tag, turn):
+    """A phone's portrait video is stored landscape with a rotation in its metadata. The fixtures
+    (2,965 bytes each): 12 frames drawn by ``_portrait_source_frame``, encoded by ``ffmpeg
+    -framerate 12 -i f%02d.png -c:v libx264 -pix_fmt yuv420p plain.mp4``, then tagged by ``ffmpeg
+    -i plain.mp4 -c copy -metadata:s:v:0 rotate=TAG`` (ffmpeg 5.1): a display matrix of -90
+    degrees for TAG 270 (what an iPhone's portrait video carries), +90 for TAG 90. The frames come
+    out as players show them: 120x160, the drawing turned a quarter clockwise (270) or
+    anticlockwise (90); checked once against ffmpeg's own decoding, identical."""
     from tsplus_wgpu.data.images import read_image_raw
-    video = Path(__file__).parent / "fixtures" / "portrait_rotate90.mp4"
+    video = Path(__file__).parent / "fixtures" / f"portrait_rotate{tag}.mp4"
     m = extract_frames(video, tmp_path / "frames", count=3)
     assert m["frames_decoded"] == 12 and len(m["frames"]) == 3
     for name, i in zip(m["frames"], m["indices"]):
         img = read_image_raw(tmp_path / "frames" / name)
         assert img.shape == (160, 120, 3)
         src = _portrait_source_frame(i)
-        shown, other = np.rot90(src, k=1), np.rot90(src, k=-1)
+        shown, other = np.rot90(src, k=turn), np.rot90(src, k=-turn)
         err, err_other = np.abs(img - shown).mean(), np.abs(img - other).mean()
         assert err < 0.03 and err_other > 4 * err, (err, err_other)

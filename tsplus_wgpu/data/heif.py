@@ -20,6 +20,7 @@ import hashlib
 import json
 import os
 import shutil
+import socket
 from pathlib import Path
 
 from .errors import SceneError
@@ -146,11 +147,19 @@ def _record(done: Path):
         return None
 
 
+def _tmp_name() -> str:
+    """The temporary folder's name: this machine and process (a cache may be shared by machines)."""
+    host = "".join(c if c.isalnum() or c in "-_" else "_" for c in socket.gethostname()) or "host"
+    return f"photos.tmp-{host}-{os.getpid()}"
+
+
 def _remove_orphans(work: Path) -> None:
-    """Temporary folders of conversions whose process is gone (killed, or the machine stopped)."""
-    for tmp in work.glob("photos.tmp*"):
+    """Temporary folders of this machine's conversions whose process is gone (killed, or the
+    machine stopped); other machines' are left alone."""
+    mine = _tmp_name().rsplit("-", 1)[0] + "-"
+    for tmp in work.glob(mine + "*"):
         try:
-            os.kill(int(tmp.name[len("photos.tmp"):]), 0)
+            os.kill(int(tmp.name[len(mine):]), 0)
         except ProcessLookupError:
             shutil.rmtree(tmp, ignore_errors=True)
         except (ValueError, OSError):
@@ -179,7 +188,7 @@ def jpeg_folder(photo_dir, cache=None, progress: bool = False, warnings=None) ->
         warnings.append(f"reused the JPEG copies of {len(rec['jpeg'])} HEIC/HEIF photos: {out}")
         return out
     Image = _opener(photo_dir / heif[0])
-    tmp = work / f"photos.tmp{os.getpid()}"
+    tmp = work / _tmp_name()
     try:
         work.mkdir(parents=True, exist_ok=True)
         _remove_orphans(work)

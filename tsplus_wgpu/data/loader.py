@@ -251,29 +251,62 @@ def _scene_root(path, cache_dir=None, progress=False, warnings=None) -> Path:
 
 
 def _no_scene(root: Path) -> SceneError:
-    """The error for a folder with no scene in it, pointing at what it does hold: a video, or
-    subfolders of photos (a phone's ``DCIM/100APPLE``), two levels down at most."""
+    """The error for a folder with no scene in it, pointing at what it does hold: a video, scene
+    folders or folders of photos (a phone's ``DCIM/100APPLE``) at most two levels down (200
+    folders looked at; unreadable ones skipped)."""
     from .video import is_video  # noqa: PLC0415
     base = (f"{root}: no photos and no camera model in it (expected photos, COLMAP sparse/, transforms.json or "
             "poses_bounds.npy)")
+    videos = sorted(p.name for p in _entries(root) if p.is_file() and is_video(p) and not p.name.startswith("."))
+    found, budget = [], [200]
+    for d in _subfolders(root, budget):
+        what = _what_is(d)
+        found += [(d, what)] if what else [(q, w) for q in _subfolders(d, budget) for w in [_what_is(q)] if w]
+    hints = [f"it holds a video: pass the video file itself ({root / videos[0]})"] if videos else []
+    if len(found) == 1:
+        hints.append(f"its subfolder {found[0][0].relative_to(root)} holds {found[0][1]}: pass {found[0][0]}")
+    elif found:
+        listed = ", ".join(f"{d.relative_to(root)} ({w})" for d, w in found[:4]) + (", ..." if len(found) > 4 else "")
+        hints.append(f"its subfolders hold {listed}: pass the one of this scene, or put the scene's photos "
+                     "into one folder")
+    return SceneError(f"{base}; " + ("; or ".join(hints) if hints else "point to a scene folder"))
+
+
+def _entries(folder: Path) -> list:
     try:
-        videos = sorted(p.name for p in root.iterdir() if p.is_file() and is_video(p))
-        subs = sorted((p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")), key=str)
-        subs += sorted((q for p in subs for q in p.iterdir() if q.is_dir() and not q.name.startswith(".")), key=str)
-        held = [(d, _count_photos(d)) for d in subs[:200]]
+        return list(folder.iterdir())
     except OSError:
-        return SceneError(f"{base}; point to a scene folder")
-    held = [(d, n) for d, n in held if n]
-    if videos:
-        return SceneError(f"{base}; it holds a video: pass the video file itself ({root / videos[0]})")
-    if len(held) == 1:
-        return SceneError(f"{base}; its subfolder {held[0][0].relative_to(root)} holds {held[0][1]} photos: pass "
-                          f"{held[0][0]}")
-    if held:
-        listed = ", ".join(f"{d.relative_to(root)} ({n})" for d, n in held[:4]) + (", ..." if len(held) > 4 else "")
-        return SceneError(f"{base}; its subfolders hold photos: {listed}; pass the one of this scene, or put the "
-                          "scene's photos into one folder")
-    return SceneError(f"{base}; point to a scene folder")
+        return []
+
+
+def _subfolders(folder: Path, budget: list) -> list:
+    """Visible subfolders of ``folder`` (sorted), while ``budget[0]`` lasts (it counts them down)."""
+    out = []
+    for p in sorted(_entries(folder), key=lambda q: q.name):
+        if budget[0] <= 0:
+            break
+        try:
+            if p.name.startswith(".") or not p.is_dir():
+                continue
+        except OSError:
+            continue
+        budget[0] -= 1
+        out.append(p)
+    return out
+
+
+def _what_is(folder: Path):
+    """What a folder holds for ``_no_scene``: "a scene", "N photos", or None."""
+    from .colmap import find_model_dir  # noqa: PLC0415
+    from .transforms import find_transforms  # noqa: PLC0415
+    try:
+        if (find_model_dir(folder) is not None or find_transforms(folder)[0]
+                or (folder / "poses_bounds.npy").is_file() or _has_photos(folder / "images")):
+            return "a scene"
+        n = _count_photos(folder)
+    except (OSError, SceneError):
+        return None
+    return None if not n else f"{n} photo" + ("s" if n > 1 else "")
 
 
 def _count_photos(folder: Path) -> int:

@@ -82,7 +82,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     mode = f"sequential{SEQUENTIAL_OVERLAP}" if sequential else (f"ordered{SEQUENTIAL_OVERLAP}" if ordered else "")
     groups = camera_groups(photo_dir, names)
     if len(groups) > 1:      # a camera a group (before: one a photo of another size); one group keeps its key
-        mode += f"cameras{len(groups)}"
+        mode += f"groups{len(groups)}"
     work = root / f"sfm_{_fingerprint([photo_dir / n for n in names], mode)[:16]}"
     model_dir = work / "sparse" / "0"
     if (model_dir / "cameras.bin").is_file() and (work / "done.json").is_file():
@@ -101,6 +101,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     try:
         best = _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, warnings,
                              groups if len(groups) > 1 else None)
+        prog.finish()
     except SceneError:
         raise
     except Exception as exc:

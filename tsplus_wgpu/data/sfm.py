@@ -95,6 +95,7 @@ class _Progress:
         """``weighted``: ``total`` and the advances are estimated seconds, not steps: the bar shows
         the share done and the time left, not a count."""
         self.enabled = enabled
+        self.weighted = weighted
         self.bar = None
         self.t0 = time.time()
         self._lock = threading.Lock()
@@ -122,13 +123,20 @@ class _Progress:
             self.bar.total += more
             self.bar.refresh()
 
-    def creep(self, units: float, tick: float = 1.0):
+    def creep(self, units: float, tick: float | None = None):
         """A context for one long call that reports nothing (pycolmap's feature extraction, its
-        matching): inside it the bar moves on by itself, at the pace the work before went (units
-        are estimated seconds of the reference machine on a ``weighted`` bar; one a second
-        before any), towards ``units`` more but never past 90 % of them, so it keeps its time
-        left; leaving it adds the rest. Without a bar, nothing happens."""
-        return _Creep(self, units, tick)
+        matching): inside it a ``weighted`` bar moves on by itself towards ``units`` more, never
+        past 90 % of them, at the pace of the work before it (before any: the units' own, an
+        estimated second of the reference machine each), so its time left keeps meaning
+        something; leaving it adds the rest. A bar of whole steps only gets the rest at the end.
+        ``tick``: seconds between moves (default: a 300th of the units, at least 1)."""
+        return _Creep(self, units, tick if tick is not None else max(1.0, units / 300.0))
+
+    def finish(self):
+        """Fill the bar: the work is done (estimates, such as photos that never register, may
+        leave a share unspent)."""
+        if self.bar is not None:
+            self._advance(self.bar.total - self.bar.n)
 
     def _advance(self, units: float):
         if self.bar is not None and units > 0:
@@ -154,7 +162,7 @@ class _Creep:
 
     def __enter__(self):
         bar = self.prog.bar
-        if bar is None or self.units <= 0:
+        if bar is None or self.units <= 0 or not self.prog.weighted:
             return self
         done = bar.n
         spent = time.time() - self.prog.t0
