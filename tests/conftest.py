@@ -46,6 +46,22 @@ def binding_renderer(renderer):
     return Renderer(GpuContext(renderer.ctx.adapter, limits="webgpu", layout=renderer.ctx.layout))
 
 
+
+@pytest.fixture
+def cup_near(monkeypatch):
+    """``(scene, order)``: the cup as its COLMAP model gives it (no points) and the indices of its
+    photos by distance from the camera of ``1.jpg``, nearest first (small overlapping sets for the
+    SfM tests), with SfM on its default single thread, which repeats. Skipped without the data."""
+    import numpy as np
+    from tsplus_wgpu.data import load_scene
+    data = Path(os.environ.get("TSPLUS_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+    if not (data / "cup").is_dir():
+        pytest.skip(f"shared data scene {data / 'cup'} not found (set TSPLUS_DATA)")
+    monkeypatch.delenv("TSPLUS_SFM_THREADS", raising=False)
+    ref = load_scene(data / "cup", split="none", points="none")
+    centres = np.stack([c.center for c in ref.cameras])
+    return ref, np.argsort(np.linalg.norm(centres - centres[ref.image_names.index("1.jpg")], axis=1))
+
 def pytest_report_header(config):
     try:
         from tsplus_wgpu.gpu import adapter_description, select_adapter

@@ -2,7 +2,6 @@
 (``tsplus_wgpu/data/heif.py``), then SfM and training read them as a folder of photos."""
 
 import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +13,6 @@ import pillow_heif       # a dependency (pyproject): missing, these tests fail r
 from PIL import Image
 from PIL.TiffImagePlugin import IFDRational
 
-DATA = Path(os.environ.get("TSPLUS_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
 pillow_heif.register_heif_opener()
 
 
@@ -58,17 +56,13 @@ def test_heif_photo_becomes_an_upright_jpeg_with_its_exif(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_folder_of_heic_photos_is_posed_like_its_jpegs(tmp_path, monkeypatch):
+def test_a_folder_of_heic_photos_is_posed_like_its_jpegs(tmp_path, cup_near):
     """Nine cup photos as HEIC, one as JPEG and a damaged file beside them: the damaged one is
     skipped with a warning naming it, the others registered with poses within 2 degrees of the
     dataset's; the JPEG copies are made once and reused, also once the original folder has moved, and made
     again when one is lost from the cache."""
-    if not (DATA / "cup").is_dir():
-        pytest.skip(f"shared data scene {DATA / 'cup'} not found (set TSPLUS_DATA)")
-    monkeypatch.delenv("TSPLUS_SFM_THREADS", raising=False)
-    ref = load_scene(DATA / "cup", split="none", points="none")
-    centres = np.stack([c.center for c in ref.cameras])
-    chosen = np.argsort(np.linalg.norm(centres - centres[ref.image_names.index("1.jpg")], axis=1))[:10]
+    ref, order = cup_near
+    chosen = order[:10]
     folder = tmp_path / "iphone"
     folder.mkdir()
     stems = {}

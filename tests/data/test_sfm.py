@@ -5,8 +5,6 @@ poses and points on every run.
 Marked ``slow`` so it can be deselected with ``-m "not slow"``; it runs by default (~5 s here).
 """
 
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +12,6 @@ import pytest
 from tsplus_wgpu.data import SceneError, load_scene
 from tsplus_wgpu.data.images import resize_area, write_image
 
-DATA = Path(os.environ.get("TSPLUS_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
 
 
 def rotation_angle_deg(R):
@@ -22,14 +19,9 @@ def rotation_angle_deg(R):
 
 
 @pytest.mark.slow
-def test_photos_only_sfm_recovers_cup_poses(tmp_path, monkeypatch):
-    if not (DATA / "cup").is_dir():
-        pytest.skip(f"shared data scene {DATA / 'cup'} not found (set TSPLUS_DATA)")
-    monkeypatch.delenv("TSPLUS_SFM_THREADS", raising=False)     # the default (one thread) is what repeats
-    ref = load_scene(DATA / "cup", split="none", points="none")
-    centres = np.stack([c.center for c in ref.cameras])
-    i0 = ref.image_names.index("1.jpg")
-    chosen = np.argsort(np.linalg.norm(centres - centres[i0], axis=1))[:10]  # 10 neighbouring photos
+def test_photos_only_sfm_recovers_cup_poses(tmp_path, cup_near):
+    ref, order = cup_near
+    chosen = order[:10]                                          # 10 neighbouring photos
     photos = tmp_path / "photos"
     photos.mkdir()
     for i in chosen:
@@ -81,16 +73,12 @@ def test_ordered_pairs_follow_the_natural_name_order():
 
 
 @pytest.mark.slow
-def test_many_photos_matched_in_name_order_fall_back_to_every_pair(tmp_path, monkeypatch):
+def test_many_photos_matched_in_name_order_fall_back_to_every_pair(tmp_path, monkeypatch, cup_near):
     """More photos than ORDERED_PHOTOS_MIN are matched in their name order; when that registers
     too few of them (here: one pair matched), every pair is matched as well and all register."""
-    if not (DATA / "cup").is_dir():
-        pytest.skip(f"shared data scene {DATA / 'cup'} not found (set TSPLUS_DATA)")
     from tsplus_wgpu.data import photos
-    monkeypatch.delenv("TSPLUS_SFM_THREADS", raising=False)
-    ref = load_scene(DATA / "cup", split="none", points="none")
-    centres = np.stack([c.center for c in ref.cameras])
-    near = np.argsort(np.linalg.norm(centres - centres[ref.image_names.index("1.jpg")], axis=1))[:10]
+    ref, order = cup_near
+    near = order[:10]
     folder = tmp_path / "photos"
     folder.mkdir()
     for i in near:

@@ -17,7 +17,6 @@ from tsplus_wgpu.data.video import (MANIFEST, SCORE_SIZE, choose_frames, extract
                                     video_frames_dir)
 
 cv2 = pytest.importorskip("cv2")
-DATA = Path(os.environ.get("TSPLUS_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
 
 
 def write_video(path, frames, fps=10, codec="mp4v"):
@@ -140,20 +139,16 @@ def rotation_angle_deg(R):
 
 
 @pytest.mark.slow
-def test_a_video_of_the_cup_registers_in_time_order(tmp_path, monkeypatch):
+def test_a_video_of_the_cup_registers_in_time_order(tmp_path, monkeypatch, cup_near):
     """The cup's 12 photos nearest photo 1, ordered along the camera path, as a video in which
     each is followed by a blurred copy: the 12 sharp frames are kept, SfM matches them in time
     order and recovers the COLMAP model's relative rotations within 2 degrees (0.21 mean, 0.52
     max here; the photos themselves, every pair matched: 0.22 / 0.54). FFV1, not MPEG-4 part 2:
     at OpenCV's bitrate for it, 400x300 frames come back at 37.8 dB and their compression
     artefacts give SfM 1.5 / 3.7 degrees (either matching)."""
-    if not (DATA / "cup").is_dir():
-        pytest.skip(f"shared data scene {DATA / 'cup'} not found (set TSPLUS_DATA)")
-    monkeypatch.delenv("TSPLUS_SFM_THREADS", raising=False)
-    ref = load_scene(DATA / "cup", split="none", points="none")
+    ref, near = cup_near
     centres = np.stack([c.center for c in ref.cameras])
-    i0 = ref.image_names.index("1.jpg")
-    near = np.argsort(np.linalg.norm(centres - centres[i0], axis=1))[:12]
+    near = near[:12]
     order = [int(near[0])]                                    # walk: always to the nearest photo not yet shown
     while len(order) < len(near):
         rest = [int(i) for i in near if int(i) not in order]
