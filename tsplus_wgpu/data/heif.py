@@ -24,7 +24,7 @@ import socket
 from pathlib import Path
 
 from .errors import SceneError
-from .images import IMAGE_EXTENSIONS
+from .images import list_images
 
 HEIF_EXTENSIONS = (".heic", ".heif", ".hif")
 JPEG_QUALITY = 95
@@ -175,8 +175,7 @@ def jpeg_folder(photo_dir, cache=None, progress: bool = False, warnings=None) ->
     photo_dir = Path(photo_dir)
     warnings = warnings if warnings is not None else []
     heif = heif_names(photo_dir)
-    others = sorted(p.name for p in photo_dir.iterdir()
-                    if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith("."))
+    others = list_images(photo_dir)
     root, note = cache_root(None, cache)
     if note:
         warnings.append(note)

@@ -316,8 +316,7 @@ def _count_photos(folder: Path) -> int:
 
 def _has_photos(folder: Path) -> bool:
     """Whether ``folder`` holds photos OpenCV reads or HEIC/HEIF photos."""
-    from .heif import heif_names  # noqa: PLC0415
-    return bool(list_images(folder) or heif_names(folder))
+    return _count_photos(folder) > 0
 
 
 def _read_format(root, images, downscale, cache_dir, progress, warnings):

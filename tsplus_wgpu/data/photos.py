@@ -15,7 +15,7 @@ import shutil
 from pathlib import Path
 
 from .errors import SceneError
-from .images import IMAGE_EXTENSIONS, read_image_size
+from .images import list_images, read_image_size
 from .sfm import (SEQUENTIAL_OVERLAP, _extract_and_match, _fingerprint, _Progress, _pycolmap, cache_root,
                   sfm_threads)
 
@@ -221,5 +221,4 @@ def camera_key(path: Path) -> tuple:
 
 def photo_names(folder: Path) -> list:
     """Image files in a photos-only folder (sorted)."""
-    return sorted(p.name for p in Path(folder).iterdir()
-                  if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith("."))
+    return list_images(folder)

@@ -11,6 +11,7 @@ The fallback without SfM points, points in the cameras' frusta, is :mod:`.frusta
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
@@ -251,19 +252,14 @@ def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, ca
         ext.sift.peak_threshold = 0.002
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
-    with progress.creep(extract_units) if progress else _nothing():
+    with progress.creep(extract_units) if progress else contextlib.nullcontext():
         for part in groups or [names]:
             pycolmap.extract_features(db, img_dir, image_names=list(part), camera_mode=camera_mode,
                                       reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
     if progress:
         progress.stage("matching", 0)
-    with progress.creep(match_units) if progress and match_units else _nothing():
+    with progress.creep(match_units) if progress and match_units else contextlib.nullcontext():
         _match(pycolmap, db, sequential, pairs)
-
-
-def _nothing():
-    import contextlib  # noqa: PLC0415
-    return contextlib.nullcontext()
 
 
 def _match(pycolmap, db, sequential, pairs):
