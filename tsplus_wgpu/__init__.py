@@ -12,6 +12,7 @@ Public API::
     scene = load_scene("path/to/scene")  or  load_procedural("small")   # or load_scene_arg("procedural:tiny")
     trainer = Trainer(scene, TrainConfig(iterations=3000, quick=True)); trainer.train()
     export(model, "mesh.glb"); model, info = load_run("runs/x"); model = read_mesh("mesh.ply")
+    up = estimate_up(scene.cameras); export(model, "mesh.glb", rotation=engine_rotation(up))   # upright
 
 Training, scene loading and export are loaded on first use.
 """
@@ -35,6 +36,7 @@ _LAZY = {
     "UserError": ".errors",
     "clip_from_camera": ".render.mesh_renderer", "load_wgsl": ".gpu.wgsl",
     "MeshCollider": ".apps.collider",
+    "estimate_up": ".data.upright", "engine_rotation": ".data.upright",
 }
 
 

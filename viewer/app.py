@@ -14,7 +14,7 @@ import time
 import numpy as np
 import wgpu
 
-from tsplus_wgpu import Camera, TriangleModel
+from tsplus_wgpu import Camera, TriangleModel, estimate_up
 
 from .controls import InputController, OrbitCamera
 from .frames import FrameRenderer
@@ -110,9 +110,9 @@ class Viewer:
         return OrbitCamera.look_at_bounds(lo, hi, w, h)
 
     def _scene_up(self):
-        ups = [-c.R.T[:, 1] for c in self.cameras]
-        u = np.mean(ups, axis=0)
-        return u / max(np.linalg.norm(u), 1e-12) if np.linalg.norm(u) > 1e-6 else ups[0]
+        """The scene's up from its cameras (:func:`tsplus_wgpu.estimate_up`)."""
+        up = estimate_up(self.cameras)
+        return up.up if up is not None else np.array([0.0, -1.0, 0.0])
 
     def _focus_distance(self, cam):
         """Distance along the optical axis to the scene's cameras' centroid look point (a

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from tsplus_wgpu import Camera, MeshCollider
+from tsplus_wgpu import Camera, MeshCollider, estimate_up
 
 def _unit(v):
     v = np.asarray(v, np.float64)
@@ -29,15 +29,16 @@ def _unit(v):
 
 
 def scene_up(cameras):
-    """World up from the scene's cameras (mean of their -y axes), snapped to a coordinate axis
-    when within 10 degrees of one; +z without cameras."""
-    if not cameras:
+    """World up from the scene's cameras (:func:`tsplus_wgpu.estimate_up`),
+    snapped to a coordinate axis when within 10 degrees of one; +z without cameras."""
+    est = estimate_up(cameras) if cameras else None
+    if est is None:
         return np.array([0.0, 0.0, 1.0])
-    u = _unit(np.mean([-c.R[1] for c in cameras], axis=0))
+    u = est.up
     k = int(np.argmax(np.abs(u)))
     if abs(u[k]) > math.cos(math.radians(10.0)):
         u = np.zeros(3)
-        u[k] = 1.0 if np.mean([-c.R[1] for c in cameras], axis=0)[k] > 0 else -1.0
+        u[k] = 1.0 if est.up[k] > 0 else -1.0
     return u
 
 

@@ -144,3 +144,41 @@ def test_failed_write_leaves_no_partial_file(model_cam, tmp_path, monkeypatch):
     with pytest.raises(ex.ExportError, match="No space left"):
         export(model, target)
     assert target.read_bytes() == b"old" and sorted(os.listdir(tmp_path)) == ["m.glb"]
+
+
+def test_y_up_stands_a_run_on_its_cameras_up(model_cam, tmp_path, capsys):
+    from tsplus_wgpu.data import load_scene_arg
+    from tsplus_wgpu.data.upright import Upright, engine_rotation, scene_upright
+    model, _ = model_cam
+    run = tmp_path / "run"
+    run.mkdir()
+    export(model, run / "mesh.ply")
+    up = np.array([0.3, -0.2, 0.9]) / np.linalg.norm([0.3, -0.2, 0.9])
+    rec = Upright(up, np.cross(up, [1.0, 0.0, 0.0]) / np.linalg.norm(np.cross(up, [1.0, 0.0, 0.0])),
+                  "the cameras' horizontal image axes", 2.0, 0, 9)
+    (run / "metrics.json").write_text(json.dumps({"upright": rec.as_dict()}))
+
+    def glb(*args):
+        out = tmp_path / "o.glb"
+        assert main(["export", str(run), "--out", str(out), *args]) == 0
+        printed = capsys.readouterr().out
+        return trimesh.load(out, force="mesh", process=False).vertices, printed
+
+    pos, printed = glb("--y-up")                                        # recorded by `tsplus train`
+    a = engine_rotation(Upright.from_dict(rec.as_dict()))
+    np.testing.assert_allclose(pos, model.positions @ a.T, atol=2e-6)
+    np.testing.assert_allclose(a @ up, [0, 1, 0], atol=1e-6)
+    assert "the cameras' up" in printed and "rms roll 2.0 deg" in printed
+    pos, printed = glb("--y-up", "--up-from", "world")                  # the fixed flip of y-down worlds
+    np.testing.assert_allclose(pos, model.positions * [1, -1, -1], atol=2e-6)
+    pos, _ = glb()                                                      # as the world has it
+    np.testing.assert_allclose(pos, model.positions, atol=2e-6)
+    (run / "metrics.json").unlink()                                     # nothing recorded: the run's scene's cameras
+    (run / "config.json").write_text(json.dumps({"extra": {"scene": "procedural:tiny", "downscale": 1}}))
+    pos, printed = glb("--y-up")
+    a = engine_rotation(scene_upright(load_scene_arg("procedural:tiny", 1, 0)))
+    np.testing.assert_allclose(pos, model.positions @ a.T, atol=2e-6)
+    (run / "config.json").unlink()                                      # no cameras at all: the flip, and why
+    pos, printed = glb("--y-up")
+    np.testing.assert_allclose(pos, model.positions * [1, -1, -1], atol=2e-6)
+    assert "no cameras known" in printed

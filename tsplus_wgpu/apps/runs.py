@@ -61,6 +61,10 @@ def load_run(path):
                 info["background"] = cfg.get("background")
             except Exception:
                 pass
+        try:                                    # the cameras' up, as `tsplus train` recorded it
+            info["upright"] = json.loads((path / "metrics.json").read_text()).get("upright")
+        except (OSError, ValueError, AttributeError):
+            pass
         mesh_path, ckpt = path / "mesh.ply", path / "checkpoint.npz"
         if not mesh_path.is_file():
             if ckpt.is_file():

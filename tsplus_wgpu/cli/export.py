@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ..apps.runs import load_run
+from ..errors import UserError
 from ..io.export import BAKES, FORMATS, ExportError, bake_views, connectivity, connectivity_line, dc_colors, export
 from .scenes import add_images_arg, load_cli_scene
 
@@ -21,7 +23,13 @@ def add_parser(sub):
     p.add_argument("run", help="run folder, mesh file or checkpoint")
     p.add_argument("--format", default=None, help="ply, glb or obj (default: --out's extension, else ply)")
     p.add_argument("--out", default=None, help="output file (default: RUN/mesh_export.FORMAT, or beside the mesh)")
-    p.add_argument("--y-up", action="store_true", help="convert the OpenCV world (y down) to y up: (x, -y, -z)")
+    p.add_argument("--y-up", action="store_true",
+                   help="stand the mesh upright for an engine: +Y is the scene's up, estimated from its cameras "
+                        "(recorded by `tsplus train`, else from the run's scene or --scene), -Z the cameras' mean "
+                        "viewing direction; a rotation, so lengths and the world's units are kept")
+    p.add_argument("--up-from", choices=("cameras", "world"), default="cameras",
+                   help="with --y-up: cameras (default) or world (the world's -y is up, as OpenCV's y-down worlds "
+                        "have it: (x, -y, -z))")
     p.add_argument("--bake", choices=BAKES, default="mesh",
                    help="vertex colour: mesh (the mesh file's own colours: for a run, fitted to the training photos "
                         "unless it was trained with --mesh-colors dc; SH DC for a checkpoint), dc (SH DC term), fit "
@@ -60,6 +68,33 @@ def _bake(args, model, info):
     return colors, "a least-squares fit to the training views"
 
 
+def _engine_frame(args, info):
+    """``(rotation or None, words)``: how ``--y-up`` turns this run's world into an engine's."""
+    from ..data.upright import Upright, engine_rotation, scene_upright
+    from ..io.export import Y_UP
+    if not args.y_up:
+        return None, ""
+    if args.up_from == "world":
+        return Y_UP, "y up: the world's -y"
+    up = Upright.from_dict(info["upright"]) if isinstance(info.get("upright"), dict) else None
+    scene_arg = args.scene or info.get("scene")
+    if up is None and scene_arg:
+        from ..data.errors import SceneError
+        from ..data.loader import load_scene
+        images = args.images or (None if args.scene else info.get("images"))
+        try:
+            scene = load_scene(scene_arg, images=images, points="none",
+                               downscale=int(info.get("downscale") or 1) if not args.scene else 1)
+            up = scene_upright(scene)
+        except (SceneError, UserError, OSError) as exc:
+            print(f"warning: --y-up: the cameras of {scene_arg} could not be read ({exc}); written with the "
+                  f"world's -y up", file=sys.stderr)
+    if up is None:
+        return Y_UP, "y up: the world's -y (no cameras known; give --scene for the cameras' up)"
+    return engine_rotation(up), (f"y up: the cameras' up, from {up.how}; {up.cameras} cameras, rms roll "
+                                 f"{up.rms_roll_deg:.1f} deg")
+
+
 def run(args):
     model, info = load_run(args.run)
     fmt = args.format
@@ -78,10 +113,11 @@ def run(args):
         colors, source = None, "SH DC"
     if args.bake in ("fit", "views"):
         colors, source = _bake(args, model, info)
-    export(model, out, fmt=fmt, colors=colors, y_up=args.y_up)
+    rotation, frame = _engine_frame(args, info)
+    export(model, out, fmt=fmt, colors=colors, rotation=rotation)
     print(f"{info.get('from', 'model')}: {model.num_vertices} vertices, {model.num_triangles} triangles, SH "
           f"{model.sh_size} coefficients")
     print(connectivity_line(connectivity(model.triangles, model.num_vertices)))
-    print(f"wrote {out} ({fmt}, {out.stat().st_size} bytes{', y up' if args.y_up else ''}, colour from "
+    print(f"wrote {out} ({fmt}, {out.stat().st_size} bytes{', ' + frame if frame else ''}, colour from "
           f"{source})")
     return 0

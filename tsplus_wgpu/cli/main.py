@@ -19,7 +19,7 @@ examples:
   tsplus inspect ../shared/data/cup     what a scene folder holds
   tsplus train capture.mp4 --out runs/c  train on a video's 100 sharpest frames (or: tsplus frames capture.mp4 --out DIR)
   tsplus train --out runs/small         train on the built-in scene (add --preset quick --iterations 300)
-  tsplus export runs/small --format glb --y-up   engine-ready mesh (ply|glb|obj)
+  tsplus export runs/small --format glb --y-up   engine-ready mesh (ply|glb|obj), upright on the cameras' up
   tsplus eval runs/small procedural:small        held-out PSNR/SSIM of the mesh as an engine draws it
   tsplus view runs/small                         fly through the result (window; --screenshot out.png --camera N headless)
   tsplus view runs/small --walk                  walk through it: gravity and collision against the mesh

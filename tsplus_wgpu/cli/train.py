@@ -264,6 +264,13 @@ def detail_line(info):
             f"{lv[0]['psnr']:.2f} dB as trained, {tried} dB at the levels tried)")
 
 
+def _upright(scene):
+    """The scene's up from its cameras (``tsplus export --y-up`` stands the mesh on it), as JSON."""
+    from ..data.upright import scene_upright
+    up = scene_upright(scene)
+    return None if up is None else up.as_dict()
+
+
 def _finish(trainer, scene, out, ckpt, psnr0):
     """Export the mesh (first: nothing optional before it), then the checkpoint, the
     evaluation, metrics.json (which marks the run finished) and the test renders."""
@@ -296,7 +303,7 @@ def _finish(trainer, scene, out, ckpt, psnr0):
                    model_vertices=trainer.n, model_triangles=trainer.m, train_seconds=trainer.elapsed,
                    iterations_per_s=trainer.iteration / max(trainer.elapsed, 1e-9),
                    shards_removed=int(fin.get("shards", 0)), path_floaters_removed=int(fin.get("floaters", 0)),
-                   color_detail=fin.get("detail"),
+                   color_detail=fin.get("detail"), upright=_upright(scene),
                    scene_warnings=[str(w) for w in getattr(scene, "warnings", None) or ()])
     write_json(out / "metrics.json", metrics)
     for v, img in zip(views[:4], imgs[:4]):

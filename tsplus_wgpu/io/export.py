@@ -8,8 +8,10 @@ alpha`` uint8 (the baked colour), ``f_dc_0..2`` and ``f_rest_0..3(K-1)-1`` float
 ``opacity`` float32 (activated, in [0, 1]); faces ``vertex_indices`` (uchar count, int32).
 A float32-valued model (as the trainer's) round-trips bit for bit.
 
-GLB: glTF 2.0 with ``POSITION`` and ``COLOR_0``; ``y_up`` turns the OpenCV world (y down,
-z forward) into glTF's y-up frame by a rotation of 180 degrees about x, ``(x, -y, -z)``.
+GLB: glTF 2.0 with ``POSITION`` and ``COLOR_0``. ``rotation`` (a 3x3 rotation, e.g.
+:func:`~tsplus_wgpu.data.upright.engine_rotation`: the cameras' up to +Y) turns the world into an
+engine's frame; ``y_up`` is the fixed one for worlds whose -y is up (OpenCV's y down, z forward),
+a rotation of 180 degrees about x, ``(x, -y, -z)``.
 """
 
 from __future__ import annotations
@@ -150,28 +152,40 @@ def encode_ply(model: TriangleModel, colors=None) -> bytes:
     return mesh.export(file_type="ply", encoding="binary")
 
 
-def _y_up(positions):
-    return np.asarray(positions, np.float64) * np.array([1.0, -1.0, -1.0])
+#: the fixed rotation of ``y_up``: 180 degrees about x
+Y_UP = np.diag([1.0, -1.0, -1.0])
 
 
-def encode_glb(positions, triangles, colors, y_up=False) -> bytes:
-    pos = _y_up(positions) if y_up else np.asarray(positions, np.float64)
+def _placed(positions, rotation=None):
+    """``positions`` (float64) turned by ``rotation`` (3x3, or None: as they are)."""
+    pos = np.asarray(positions, np.float64)
+    if rotation is None:
+        return pos
+    rot = np.asarray(rotation, np.float64)
+    if rot.shape != (3, 3) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-9) or np.linalg.det(rot) < 0:
+        raise ExportError("rotation: not a 3x3 rotation; nothing written")
+    return pos @ rot.T
+
+
+def encode_glb(positions, triangles, colors, y_up=False, rotation=None) -> bytes:
+    pos = _placed(positions, Y_UP if y_up and rotation is None else rotation)
     mesh = _trimesh(pos.astype(np.float32), triangles, colors)
     return mesh.export(file_type="glb")
 
 
-def encode_obj(positions, triangles, colors, y_up=False) -> bytes:
+def encode_obj(positions, triangles, colors, y_up=False, rotation=None) -> bytes:
     from trimesh.exchange.obj import export_obj
-    pos = _y_up(positions) if y_up else np.asarray(positions, np.float64)
+    pos = _placed(positions, Y_UP if y_up and rotation is None else rotation)
     mesh = _trimesh(pos, triangles, colors)
     text = export_obj(mesh, include_normals=False, include_color=True, include_texture=False, digits=9,
                       header="tsplus-wgpu mesh, vertex colours as 'v x y z r g b'")
     return text.encode()
 
 
-def export(model: TriangleModel, path, fmt=None, colors=None, y_up=False):
+def export(model: TriangleModel, path, fmt=None, colors=None, y_up=False, rotation=None):
     """Write ``model`` to ``path`` atomically (temp file + os.replace; nothing is left
-    behind on error). ``fmt`` defaults to the file's extension; ``colors`` to SH DC."""
+    behind on error). ``fmt`` defaults to the file's extension; ``colors`` to SH DC;
+    ``rotation`` (3x3) turns the positions, else ``y_up`` the fixed ``(x, -y, -z)``."""
     path = Path(path)
     fmt = (fmt or path.suffix.lstrip(".")).lower()
     if fmt not in FORMATS:
@@ -179,14 +193,15 @@ def export(model: TriangleModel, path, fmt=None, colors=None, y_up=False):
     if model.num_triangles == 0:
         raise ExportError("the mesh has no triangles; nothing to export")
     colors = dc_colors(model) if colors is None else np.asarray(colors, np.float64)
+    rot = Y_UP if y_up and rotation is None else rotation
     if fmt == "ply":
-        if y_up:
-            model = TriangleModel(_y_up(model.positions), model.triangles, model.sh, model.opacity)
+        if rot is not None:
+            model = TriangleModel(_placed(model.positions, rot), model.triangles, model.sh, model.opacity)
         data = encode_ply(model, colors)
     elif fmt == "glb":
-        data = encode_glb(model.positions, model.triangles, colors, y_up)
+        data = encode_glb(model.positions, model.triangles, colors, rotation=rot)
     else:
-        data = encode_obj(model.positions, model.triangles, colors, y_up)
+        data = encode_obj(model.positions, model.triangles, colors, rotation=rot)
     _atomic_bytes(path, data)
     return path
 
