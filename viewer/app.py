@@ -54,8 +54,10 @@ class Viewer:
     """
 
     def __init__(self, source, cameras=None, size=None, offscreen=False, background=(0, 0, 0), hud=True,
-                 max_fps=30.0, screenshot_dir=".", title="tsplus view", camera_index=None, walk=False, near=0.01):
+                 max_fps=30.0, screenshot_dir=".", title="tsplus view", camera_index=None, walk=False, near=0.01,
+                 up=None):
         self.source = source
+        self.up = None if up is None else np.asarray(up, np.float64)   # without cameras: the file's up (default +z)
         self.near = float(near)
         self.cameras = list(cameras or [])
         self.renderer = source.renderer
@@ -94,7 +96,7 @@ class Viewer:
     def start_walk(self):
         """Walk from the current view: gravity and collision against the mesh (viewer/walk.py)."""
         from .walk import start_walk
-        self.walking = start_walk(self.source, self.controller.camera.camera(*self.size), self.cameras)
+        self.walking = start_walk(self.source, self.controller.camera.camera(*self.size), self.cameras, up=self.up)
 
     # ------------------------------------------------------------------ setup
     def _initial_camera(self):
@@ -107,7 +109,7 @@ class Viewer:
         else:
             lo, hi = -np.ones(3), np.ones(3)
         w, h = self.size
-        return OrbitCamera.look_at_bounds(lo, hi, w, h)
+        return OrbitCamera.look_at_bounds(lo, hi, w, h, up=(0.0, 0.0, 1.0) if self.up is None else self.up)
 
     def _scene_up(self):
         """The scene's up from its cameras (:func:`tsplus_wgpu.estimate_up`)."""

@@ -64,10 +64,11 @@ class OrbitCamera:
         f = 0.5 * height / math.tan(math.radians(fov_deg) / 2)
         dist = radius / math.sin(math.radians(fov_deg) / 2) * 1.05
         up = np.asarray(up, np.float64)
-        fwd = np.array([1.0, 1.0, -0.6])
-        fwd = fwd - up * 0.0
+        side = np.array([1.0, 1.0, 1.0]) - up * float(up @ np.ones(3))   # a diagonal across the ground
+        side = side * (math.sqrt(2.0) / max(float(np.linalg.norm(side)), 1e-12))
+        fwd = side - 0.6 * up if abs(up[2]) < 1.0 else np.array([1.0, 1.0, -0.6 * up[2]])
         fwd /= np.linalg.norm(fwd)
-        x = np.cross(fwd, -up)
+        x = np.cross(-up, fwd)             # image x level, image y (down) against up
         if np.linalg.norm(x) < 1e-6:
             x = np.cross(fwd, [1.0, 0.0, 0.0])
         x /= np.linalg.norm(x)

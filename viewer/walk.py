@@ -28,12 +28,12 @@ def _unit(v):
     return v / max(float(np.linalg.norm(v)), 1e-300)
 
 
-def scene_up(cameras):
+def scene_up(cameras, default=None):
     """World up from the scene's cameras (:func:`tsplus_wgpu.estimate_up`),
-    snapped to a coordinate axis when within 10 degrees of one; +z without cameras."""
+    snapped to a coordinate axis when within 10 degrees of one; ``default`` (+z) without cameras."""
     est = estimate_up(cameras) if cameras else None
     if est is None:
-        return np.array([0.0, 0.0, 1.0])
+        return _unit(default) if default is not None else np.array([0.0, 0.0, 1.0])
     u = est.up
     k = int(np.argmax(np.abs(u)))
     if abs(u[k]) > math.cos(math.radians(10.0)):
@@ -289,12 +289,13 @@ class WalkInput:
         self.jump = False
 
 
-def start_walk(source, camera: Camera, cameras=None, collider=None):
+def start_walk(source, camera: Camera, cameras=None, collider=None, up=None):
     """A :class:`WalkInput` around a walker standing below ``camera`` in ``source``'s mesh
-    (a viewer source with a ``model``), up from the scene's ``cameras``."""
+    (a viewer source with a ``model``), up from the scene's ``cameras`` (without them ``up``,
+    else +z)."""
     model = getattr(source, "model", None)
     if collider is None:
         if model is None or not hasattr(model, "positions"):
             raise ValueError("--walk: needs a mesh (a run folder, PLY, GLB or OBJ), not a live trainer")
         collider = MeshCollider(model)
-    return WalkInput(WalkController.from_camera(collider, camera, scene_up(cameras)))
+    return WalkInput(WalkController.from_camera(collider, camera, scene_up(cameras, up)))

@@ -255,6 +255,21 @@ def test_orbit_keeps_target_and_distance():
     np.testing.assert_allclose(oc.center @ oc.up, h0, atol=1e-12)
 
 
+@pytest.mark.parametrize("up", [(0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (0.6, 0.0, 0.8)])
+def test_a_file_without_cameras_is_seen_upright_from_above(up):
+    """``tsplus view mesh.glb`` (no cameras) orbits about the file's up (glTF's +Y): the first
+    view looks down at the box's centre, its image y axis (down) against ``up``, no roll."""
+    up = np.asarray(up)
+    oc = v.OrbitCamera.look_at_bounds(-np.ones(3), np.ones(3), 200, 100, up=up)
+    np.testing.assert_allclose(oc.up, up, atol=1e-12)
+    r = oc.rotation                                          # columns: camera x, y, z in the world
+    assert -0.6 < r[:, 2] @ up < -0.3                        # looking down at about 25 degrees
+    assert r[:, 1] @ up < -0.8                               # image down is world down
+    assert abs(r[:, 0] @ up) < 1e-12                         # level: no roll
+    np.testing.assert_allclose(r.T @ r, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) > 0
+
+
 def test_pan_follows_cursor_zoom_and_look():
     oc = v.OrbitCamera.look_at_bounds(-np.ones(3), np.ones(3), 200, 100)
     cam0 = oc.camera(200, 100)

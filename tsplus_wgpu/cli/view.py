@@ -154,6 +154,8 @@ def run(args):
         if not 0 <= args.camera < len(cameras):
             raise ValueError(f"--camera: expected 0..{len(cameras) - 1}, got {args.camera}")
     size = parse_size(args.size) if args.size else None
+    # a file without cameras: glTF is +Y up by its specification, and OBJ by custom (what --y-up writes)
+    up = (0.0, 1.0, 0.0) if Path(args.path).suffix.lower() in (".glb", ".gltf", ".obj") else None
     near = WorldFrame.for_cameras(cameras).near_world() if cameras else NEAR   # the mesh is in world units
     bg = info.get("background") or (0.0, 0.0, 0.0)
     renderer = Renderer(args.adapter)
@@ -164,7 +166,7 @@ def run(args):
             c = cameras[args.camera]
             size = (c.width, c.height)
         viewer = v.Viewer(source, cameras, size=size, offscreen=True, background=bg, hud=args.hud,
-                          camera_index=args.camera, walk=args.walk, near=near)
+                          camera_index=args.camera, walk=args.walk, near=near, up=up)
         viewer.mode = "splat" if args.splat else "mesh"
         viewer.wire = args.wireframe
         if viewer.walking is not None:
@@ -180,7 +182,8 @@ def run(args):
         return 0
     try:
         viewer = v.Viewer(source, cameras, size=size, background=bg, max_fps=args.max_fps,
-                          camera_index=args.camera, title=f"tsplus view {args.path}", walk=args.walk, near=near)
+                          camera_index=args.camera, title=f"tsplus view {args.path}", walk=args.walk, near=near,
+                          up=up)
     except v.NoDisplayError as exc:     # glfw missing, or it cannot reach the display
         raise UserError(f"view: cannot open a window: {exc}; {v.NO_DISPLAY_HINT}") from None
     viewer.mode = "splat" if args.splat else "mesh"
