@@ -182,3 +182,33 @@ def test_y_up_stands_a_run_on_its_cameras_up(model_cam, tmp_path, capsys):
     pos, printed = glb("--y-up")
     np.testing.assert_allclose(pos, model.positions * [1, -1, -1], atol=2e-6)
     assert "no cameras known" in printed
+
+
+@pytest.mark.parametrize("fmt", ["glb", "obj"])
+def test_an_upright_export_reads_back_into_its_world(model_cam, mr, tmp_path, fmt):
+    """A GLB / OBJ written upright records its rotation, so `tsplus eval` / `view --scene` of it
+    draw the world the photos were taken in; re-exporting it upright gives the same file frame."""
+    from tsplus_wgpu.data.upright import Upright, engine_rotation
+    from tsplus_wgpu.io.export import file_rotation
+    model, cam = model_cam
+    up = np.array([0.2, -0.9, 0.3]) / np.linalg.norm([0.2, -0.9, 0.3])
+    fwd = np.cross(up, [1.0, 0.0, 0.0])
+    a = engine_rotation(Upright(up, fwd / np.linalg.norm(fwd), "", 0.0, 0, 1))
+    path = export(model, tmp_path / f"m.{fmt}", rotation=a)
+    np.testing.assert_allclose(file_rotation(path), a, atol=1e-15)
+    t = trimesh.load(path, force="mesh", process=False)                  # what an engine reads: upright
+    np.testing.assert_allclose(t.vertices, model.positions @ a.T, atol=1e-5)
+    back, info = load_run(path)                                          # what we read: the world
+    np.testing.assert_allclose(back.positions, model.positions, atol=1e-5)
+    np.testing.assert_allclose(info["file_up"], up, atol=1e-12)
+    col8 = to_uint8(dc_colors(model)) / 255.0
+    before = mr.render((model.positions, model.triangles, col8), cam).image
+    after = mr.render((back.positions, back.triangles, dc_colors(back)), cam).image
+    assert np.mean(np.abs(after - before)) < 1e-3
+    out = tmp_path / f"again.{fmt}"                                      # upright again: the same frame
+    assert main(["export", str(path), "--out", str(out), "--y-up"]) == 0
+    np.testing.assert_allclose(trimesh.load(out, force="mesh", process=False).vertices, t.vertices, atol=2e-5)
+    plain = export(model, tmp_path / f"plain.{fmt}")                    # no rotation: nothing recorded
+    assert file_rotation(plain) is None
+    np.testing.assert_allclose(load_run(plain)[0].positions, model.positions, atol=1e-5)
+    assert file_rotation(tmp_path / "missing.glb") is None

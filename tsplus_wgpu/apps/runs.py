@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.export import ExportError, read_mesh, read_ply, read_ply_colors
+from ..io.export import ExportError, file_rotation, read_mesh, read_ply, read_ply_colors
 from ..types import TriangleModel
 
 
@@ -94,7 +94,14 @@ def load_run(path):
         return read_ply(path), info
     if suffix in (".glb", ".gltf", ".obj", ".off", ".stl"):
         info["from"] = suffix[1:]
-        return read_mesh(path), info
+        model = read_mesh(path)
+        rot = file_rotation(path) if suffix in (".glb", ".obj") else None
+        if rot is not None:                     # written upright by `tsplus export --y-up`: back to the world
+            model = TriangleModel(model.positions @ rot, model.triangles, model.sh, model.opacity)
+            info["from"] += " (turned back into the world it was exported from)"
+            info["upright"] = {"up": rot[1].tolist(), "forward": (-rot[2]).tolist(), "how": "the file's own frame"}
+            info["file_up"] = rot[1].tolist()
+        return model, info
     raise ExportError(f"{path}: unknown file type {suffix or '(none)'}; expected a run folder, .ply, .glb, .obj "
                       f"or checkpoint .npz")
 

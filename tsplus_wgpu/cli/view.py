@@ -154,8 +154,10 @@ def run(args):
         if not 0 <= args.camera < len(cameras):
             raise ValueError(f"--camera: expected 0..{len(cameras) - 1}, got {args.camera}")
     size = parse_size(args.size) if args.size else None
-    # a file without cameras: glTF is +Y up by its specification, and OBJ by custom (what --y-up writes)
-    up = (0.0, 1.0, 0.0) if Path(args.path).suffix.lower() in (".glb", ".gltf", ".obj") else None
+    # a file without cameras: glTF is +Y up by its specification, and OBJ by custom; one that
+    # `tsplus export --y-up` wrote is read back into its world, and its +Y is recorded
+    up = info.get("file_up") or ((0.0, 1.0, 0.0) if Path(args.path).suffix.lower() in (".glb", ".gltf", ".obj")
+                                 else None)
     near = WorldFrame.for_cameras(cameras).near_world() if cameras else NEAR   # the mesh is in world units
     bg = info.get("background") or (0.0, 0.0, 0.0)
     renderer = Renderer(args.adapter)

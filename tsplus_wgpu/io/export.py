@@ -167,19 +167,57 @@ def _placed(positions, rotation=None):
     return pos @ rot.T
 
 
+#: where a GLB (``asset.extras``) or an OBJ (a header comment) records the rotation its positions
+#: were written with, so that reading it back gives the world again (``tsplus eval`` of an upright GLB)
+FRAME_KEY = "tsplus_world_to_file"
+
+
 def encode_glb(positions, triangles, colors, y_up=False, rotation=None) -> bytes:
-    pos = _placed(positions, Y_UP if y_up and rotation is None else rotation)
-    mesh = _trimesh(pos.astype(np.float32), triangles, colors)
-    return mesh.export(file_type="glb")
+    rot = Y_UP if y_up and rotation is None else rotation
+    mesh = _trimesh(_placed(positions, rot).astype(np.float32), triangles, colors)
+
+    def record(tree):
+        tree.setdefault("asset", {}).setdefault("extras", {})[FRAME_KEY] = np.asarray(rot, float).tolist()
+    return mesh.export(file_type="glb", tree_postprocessor=None if rot is None else record)
 
 
 def encode_obj(positions, triangles, colors, y_up=False, rotation=None) -> bytes:
     from trimesh.exchange.obj import export_obj
-    pos = _placed(positions, Y_UP if y_up and rotation is None else rotation)
-    mesh = _trimesh(pos, triangles, colors)
+    rot = Y_UP if y_up and rotation is None else rotation
+    mesh = _trimesh(_placed(positions, rot), triangles, colors)
+    header = "tsplus-wgpu mesh, vertex colours as 'v x y z r g b'"
+    if rot is not None:
+        header += f"\n# {FRAME_KEY} " + " ".join(f"{v:.17g}" for v in np.asarray(rot, float).ravel())
     text = export_obj(mesh, include_normals=False, include_color=True, include_texture=False, digits=9,
-                      header="tsplus-wgpu mesh, vertex colours as 'v x y z r g b'")
+                      header=header)
     return text.encode()
+
+
+def file_rotation(path) -> np.ndarray | None:
+    """The rotation ``A`` a GLB or OBJ of ours was written with (positions ``A @ p`` of the world
+    points ``p``), or None: another program's file, a PLY, or no rotation."""
+    import json
+    import re
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 16)
+        if head[:4] == b"glTF" and head[16:20] == b"JSON":
+            n = int.from_bytes(head[12:16], "little")
+            with open(path, "rb") as f:
+                f.seek(20)
+                tree = json.loads(f.read(n))
+            rot = np.asarray(tree["asset"]["extras"][FRAME_KEY], np.float64)
+        else:
+            m = re.search(rb"^# " + FRAME_KEY.encode() + rb"((?: +\S+){9}) *$", head, re.MULTILINE)
+            if m is None:
+                return None
+            rot = np.array([float(v) for v in m.group(1).split()]).reshape(3, 3)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    if rot.shape != (3, 3) or not np.all(np.isfinite(rot)) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6):
+        return None
+    return rot
 
 
 def export(model: TriangleModel, path, fmt=None, colors=None, y_up=False, rotation=None):
