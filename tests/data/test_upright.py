@@ -174,3 +174,32 @@ def test_the_shared_captures_stand_on_their_table_and_street(name):
         assert np.mean((pts - origin) @ est.up > 0.02 * scale) > 0.5   # the cup stands on the table
     else:                                                               # a street walked one way
         assert est.how.startswith("the cameras' mean up")
+
+
+def test_scene_upright_reads_each_photos_exif(tmp_path):
+    """The cup's cameras with their photos tagged as a phone tags a portrait photo (orientation
+    6: known sideways, the same up as recognised without EXIF), and tagged the other way round
+    (orientation 8: up is +x, so the estimate turns over)."""
+    from types import SimpleNamespace
+
+    from PIL import Image
+
+    from tsplus_wgpu.data.loader import load_scene
+    if not (DATA / "cup").is_dir():
+        pytest.skip(f"{DATA / 'cup'} missing")
+    cup = load_scene(DATA / "cup", split="none", downscale=8, points="none")
+    plain = U.scene_upright(cup)
+    ups = {}
+    for o in (6, 8):
+        folder = tmp_path / f"o{o}"
+        folder.mkdir()
+        im = Image.new("RGB", (4, 3))
+        ex = im.getexif()
+        ex[0x0112] = o
+        for name in cup.image_names:
+            im.save(folder / name, exif=ex.tobytes())
+        est = U.scene_upright(SimpleNamespace(image_dir=str(folder), image_names=cup.image_names, cameras=cup.cameras))
+        assert est.sideways == 0                                         # known, not guessed
+        ups[o] = est.up
+    assert _deg(ups[6], plain.up) < 1e-6
+    assert _deg(ups[8], -plain.up) < 1e-6
