@@ -169,8 +169,10 @@ def test_the_shared_captures_stand_on_their_table_and_street(name):
     assert _deg(n, est.up) < 5.0
     centres = np.stack([c.center for c in scene.cameras])
     assert np.mean((centres - origin) @ est.up > 0) > 0.6              # the cameras are above it
+    assert "\nup:         (" in scene.summary()                          # what `tsplus inspect` prints
     if name == "cup":                                                   # its photos are stored sideways, no EXIF
         assert est.sideways == len(scene.cameras) and est.rms_roll_deg < 10
+        assert f"{len(scene.cameras)} photos stored sideways" in scene.summary()
         assert np.mean((pts - origin) @ est.up > 0.02 * scale) > 0.5   # the cup stands on the table
     else:                                                               # a street walked one way
         assert est.how.startswith("the cameras' mean up")

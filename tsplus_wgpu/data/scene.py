@@ -14,6 +14,7 @@ from .errors import SceneError
 from .frame import WorldFrame
 from .images import composite, read_image_raw, resize_area
 from .plausible import check_train_size, check_translation
+from .upright import scene_upright
 
 
 @dataclass
@@ -140,6 +141,10 @@ class Scene:
             lo, hi = centers.min(0), centers.max(0)
             lines.append("centres:    box " + " .. ".join("(" + ", ".join(f"{x:.3g}" for x in v) + ")"
                                                           for v in (lo, hi)))
+            up = scene_upright(self)
+            lines.append(f"up:         ({', '.join(f'{x:.3f}' for x in up.up)}) from {up.how}; rms roll "
+                         f"{up.rms_roll_deg:.1f} deg" + (f"; {up.sideways} photos stored sideways" if up.sideways
+                                                         else "") + " (export --y-up stands the mesh on it)")
         if self.image_dir:
             lines.append(f"image dir:  {self.image_dir}" + (f" ({self.image_dir_reason})" if self.image_dir_reason else ""))
         sizes = Counter(f"{im.shape[1]}x{im.shape[0]}" for im in self.images)
