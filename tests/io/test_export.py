@@ -184,9 +184,9 @@ def test_y_up_stands_a_run_on_its_cameras_up(model_cam, tmp_path, capsys):
     assert "no cameras known" in printed
 
 
-@pytest.mark.parametrize("fmt", ["glb", "obj"])
+@pytest.mark.parametrize("fmt", ["glb", "obj", "ply"])
 def test_an_upright_export_reads_back_into_its_world(model_cam, mr, tmp_path, fmt):
-    """A GLB / OBJ written upright records its rotation, so `tsplus eval` / `view --scene` of it
+    """A GLB / OBJ / PLY written upright records its rotation, so `tsplus eval` / `view --scene` of it
     draw the world the photos were taken in; re-exporting it upright gives the same file frame."""
     from tsplus_wgpu.data.upright import Upright, engine_rotation
     from tsplus_wgpu.io.export import file_rotation
@@ -201,7 +201,7 @@ def test_an_upright_export_reads_back_into_its_world(model_cam, mr, tmp_path, fm
     back, info = load_run(path)                                          # what we read: the world
     np.testing.assert_allclose(back.positions, model.positions, atol=1e-5)
     np.testing.assert_allclose(info["file_up"], up, atol=1e-12)
-    col8 = to_uint8(dc_colors(model)) / 255.0
+    col8 = dc_colors(model) if fmt == "ply" else to_uint8(dc_colors(model)) / 255.0
     before = mr.render((model.positions, model.triangles, col8), cam).image
     after = mr.render((back.positions, back.triangles, dc_colors(back)), cam).image
     assert np.mean(np.abs(after - before)) < 1e-3

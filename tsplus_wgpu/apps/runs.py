@@ -91,19 +91,24 @@ def load_run(path):
     if suffix == ".ply":
         info["from"] = "ply"
         info["colors"] = read_ply_colors(path)
-        return read_ply(path), info
+        return _to_world(read_ply(path), path, info)
     if suffix in (".glb", ".gltf", ".obj", ".off", ".stl"):
         info["from"] = suffix[1:]
-        model = read_mesh(path)
-        rot = file_rotation(path) if suffix in (".glb", ".obj") else None
-        if rot is not None:                     # written upright by `tsplus export --y-up`: back to the world
-            model = TriangleModel(model.positions @ rot, model.triangles, model.sh, model.opacity)
-            info["from"] += " (turned back into the world it was exported from)"
-            info["upright"] = {"up": rot[1].tolist(), "forward": (-rot[2]).tolist(), "how": "the file's own frame"}
-            info["file_up"] = rot[1].tolist()
-        return model, info
+        return _to_world(read_mesh(path), path, info)
     raise ExportError(f"{path}: unknown file type {suffix or '(none)'}; expected a run folder, .ply, .glb, .obj "
                       f"or checkpoint .npz")
+
+
+def _to_world(model: TriangleModel, path, info):
+    """A mesh file `tsplus export --y-up` wrote, turned back into the world it was exported
+    from (its rotation is recorded in it), with its +Y kept in ``info`` (the viewer's up)."""
+    rot = file_rotation(path) if path.suffix.lower() in (".glb", ".obj", ".ply") else None
+    if rot is not None:
+        model = TriangleModel(model.positions @ rot, model.triangles, model.sh, model.opacity)
+        info["from"] += " (turned back into the world it was exported from)"
+        info["upright"] = {"up": rot[1].tolist(), "forward": (-rot[2]).tolist(), "how": "the file's own frame"}
+        info["file_up"] = rot[1].tolist()
+    return model, info
 
 
 def _attach(mesh: TriangleModel, full: TriangleModel):

@@ -91,8 +91,8 @@ def _engine_frame(args, info):
                   f"world's -y up", file=sys.stderr)
     if up is None:
         return Y_UP, "y up: the world's -y (no cameras known; give --scene for the cameras' up)"
-    return engine_rotation(up), (f"y up: the cameras' up, from {up.how}; {up.cameras} cameras, rms roll "
-                                 f"{up.rms_roll_deg:.1f} deg")
+    counts = f"; {up.cameras} cameras, rms roll {up.rms_roll_deg:.1f} deg" if up.cameras else ""
+    return engine_rotation(up), f"y up: the cameras' up, from {up.how}{counts}"
 
 
 def run(args):

@@ -167,7 +167,7 @@ def _placed(positions, rotation=None):
     return pos @ rot.T
 
 
-#: where a GLB (``asset.extras``) or an OBJ (a header comment) records the rotation its positions
+#: where a GLB (``asset.extras``), an OBJ or a PLY (a header comment) records the rotation its positions
 #: were written with, so that reading it back gives the world again (``tsplus eval`` of an upright GLB)
 FRAME_KEY = "tsplus_world_to_file"
 
@@ -194,8 +194,8 @@ def encode_obj(positions, triangles, colors, y_up=False, rotation=None) -> bytes
 
 
 def file_rotation(path) -> np.ndarray | None:
-    """The rotation ``A`` a GLB or OBJ of ours was written with (positions ``A @ p`` of the world
-    points ``p``), or None: another program's file, a PLY, or no rotation."""
+    """The rotation ``A`` a GLB, OBJ or PLY of ours was written with (positions ``A @ p`` of the
+    world points ``p``), or None: another program's file, or no rotation."""
     import json
     import re
     path = Path(path)
@@ -209,7 +209,7 @@ def file_rotation(path) -> np.ndarray | None:
                 tree = json.loads(f.read(n))
             rot = np.asarray(tree["asset"]["extras"][FRAME_KEY], np.float64)
         else:
-            m = re.search(rb"^# " + FRAME_KEY.encode() + rb"((?: +\S+){9}) *$", head, re.MULTILINE)
+            m = re.search(rb"^(?:# |comment )" + FRAME_KEY.encode() + rb"((?: +\S+){9}) *$", head, re.MULTILINE)
             if m is None:
                 return None
             rot = np.array([float(v) for v in m.group(1).split()]).reshape(3, 3)
@@ -236,6 +236,10 @@ def export(model: TriangleModel, path, fmt=None, colors=None, y_up=False, rotati
         if rot is not None:
             model = TriangleModel(_placed(model.positions, rot), model.triangles, model.sh, model.opacity)
         data = encode_ply(model, colors)
+        if rot is not None:                      # recorded as a header comment after the format line
+            at = data.index(b"\n", data.index(b"format ")) + 1
+            line = f"comment {FRAME_KEY} " + " ".join(f"{v:.17g}" for v in np.asarray(rot, float).ravel())
+            data = data[:at] + line.encode() + b"\n" + data[at:]
     elif fmt == "glb":
         data = encode_glb(model.positions, model.triangles, colors, rotation=rot)
     else:
