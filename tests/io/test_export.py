@@ -161,8 +161,9 @@ def test_y_up_stands_a_run_on_its_cameras_up(model_cam, tmp_path, capsys):
     def glb(*args):
         out = tmp_path / "o.glb"
         assert main(["export", str(run), "--out", str(out), *args]) == 0
-        printed = capsys.readouterr().out
-        return trimesh.load(out, force="mesh", process=False).vertices, printed
+        printed = capsys.readouterr()
+        glb.err = printed.err
+        return trimesh.load(out, force="mesh", process=False).vertices, printed.out
 
     pos, printed = glb("--y-up")                                        # recorded by `tsplus train`
     a = engine_rotation(Upright.from_dict(rec.as_dict()))
@@ -182,6 +183,14 @@ def test_y_up_stands_a_run_on_its_cameras_up(model_cam, tmp_path, capsys):
     pos, printed = glb("--y-up")
     np.testing.assert_allclose(pos, model.positions * [1, -1, -1], atol=2e-6)
     assert "no cameras known" in printed
+    for bad in ('{"upright": {"up": "north", "forward": [0, 0]}}', '[1, 2]', '{"upright": {"up": [0, 0, 0]}}'):
+        (run / "metrics.json").write_text(bad)                          # a damaged record is not trusted
+        pos, printed = glb("--y-up")
+        np.testing.assert_allclose(pos, model.positions * [1, -1, -1], atol=2e-6)
+    (run / "config.json").write_text(json.dumps({"extra": {"scene": str(tmp_path / "gone")}}))
+    pos, printed = glb("--y-up")                                        # a scene that moved: a warning line
+    np.testing.assert_allclose(pos, model.positions * [1, -1, -1], atol=2e-6)
+    assert glb.err.count("\n") == 1 and "warning: --y-up: the cameras of" in glb.err and "gone" in glb.err
 
 
 @pytest.mark.parametrize("fmt", ["glb", "obj", "ply"])
