@@ -38,8 +38,11 @@ def test_crop_twin_is_the_twin_of_the_whole_image_on_the_crop():
     np.testing.assert_array_equal(part.ambiguous, whole.ambiguous[10:26, 300:316])
 
 
-def test_a_size_runs_and_agrees_with_the_twin(renderer):
-    row = scale_row(renderer, 4_000, 96, 64, sh_degree=3, reference_render=reference.render)
+def test_a_size_runs_and_agrees_with_the_twin():
+    from tsplus_wgpu import Renderer
+    # a renderer of its own: the session's shares scratch buffers that earlier tests grew, which
+    # this size then reuses, so its peak would depend on which tests ran before it in the worker
+    row = scale_row(Renderer(), 4_000, 96, 64, sh_degree=3, reference_render=reference.render)
     assert "refused" not in row
     assert row["pairs"] > 0 and row["pairs_per_pixel"] == row["pairs"] / (96 * 64)
     assert row["forward_ms"] > 0 and row["backward_ms"] > 0

@@ -11,6 +11,7 @@ of shared vertices, about 2 triangles a vertex, several layers deep, filling the
 
 from __future__ import annotations
 
+import gc
 import math
 import platform
 import statistics
@@ -94,6 +95,7 @@ def scale_row(renderer, num_vertices, width, height, sh_degree=3, sigma=0.5, rep
            "height": height}
     rng = np.random.default_rng(1)
     vi = rng.normal(size=(height, width, 3)).astype(np.float32)
+    gc.collect()                   # buffers of earlier sizes freed now, not while this one is measured
     ctx.reset_peak()
     before = ctx.live_bytes()
     fwd, bwd, walls = [], [], []
