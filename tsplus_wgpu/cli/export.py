@@ -10,7 +10,8 @@ import numpy as np
 
 from ..apps.runs import load_run
 from ..errors import UserError
-from ..io.export import BAKES, FORMATS, ExportError, bake_views, connectivity, connectivity_line, dc_colors, export
+from ..io.export import (BAKES, FORMATS, Y_UP, ExportError, bake_views, connectivity, connectivity_line, dc_colors,
+                         export)
 from .scenes import add_images_arg, load_cli_scene
 
 
@@ -71,7 +72,6 @@ def _bake(args, model, info):
 def _engine_frame(args, info):
     """``(rotation or None, words)``: how ``--y-up`` turns this run's world into an engine's."""
     from ..data.upright import Upright, engine_rotation, scene_upright
-    from ..io.export import Y_UP
     if not args.y_up:
         return None, ""
     if args.up_from == "world":

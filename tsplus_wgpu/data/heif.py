@@ -25,12 +25,12 @@ from pathlib import Path
 
 from .errors import SceneError
 from .images import list_images
+from .upright import EXIF_ORIENTATION as _ORIENTATION
 
 HEIF_EXTENSIONS = (".heic", ".heif", ".hif")
 JPEG_QUALITY = 95
 #: part of the cache key: change it when the conversion changes
 RECIPE = "heif-jpeg95-v1"
-_ORIENTATION = 0x0112
 
 
 def heif_names(folder) -> list:

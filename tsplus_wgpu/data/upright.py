@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+#: the EXIF tag of a photo's orientation
+EXIF_ORIENTATION = 0x0112
 #: EXIF orientation -> the camera-frame axis (x right, y down) pointing up in the displayed photo
 _EXIF_UP = {1: (0, -1, 0), 2: (0, -1, 0), 3: (0, 1, 0), 4: (0, 1, 0),
             5: (-1, 0, 0), 6: (-1, 0, 0), 7: (1, 0, 0), 8: (1, 0, 0)}
@@ -79,7 +81,7 @@ def exif_up_axis(path) -> np.ndarray | None:
     try:
         from PIL import Image  # noqa: PLC0415
         with Image.open(Path(path)) as im:
-            o = im.getexif().get(0x0112)
+            o = im.getexif().get(EXIF_ORIENTATION)
     except Exception:
         return None
     axis = _EXIF_UP.get(int(o)) if isinstance(o, int) else None

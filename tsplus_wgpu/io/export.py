@@ -172,8 +172,18 @@ def _placed(positions, rotation=None):
 FRAME_KEY = "tsplus_world_to_file"
 
 
+def _rotation(y_up, rotation):
+    """The rotation an export applies: ``rotation``, else the fixed ``Y_UP`` when ``y_up``, else None."""
+    return Y_UP if y_up and rotation is None else rotation
+
+
+def _record(rot) -> str:
+    """``FRAME_KEY`` and the rotation's nine numbers, exactly (the OBJ / PLY header comment)."""
+    return f"{FRAME_KEY} " + " ".join(f"{v:.17g}" for v in np.asarray(rot, float).ravel())
+
+
 def encode_glb(positions, triangles, colors, y_up=False, rotation=None) -> bytes:
-    rot = Y_UP if y_up and rotation is None else rotation
+    rot = _rotation(y_up, rotation)
     mesh = _trimesh(_placed(positions, rot).astype(np.float32), triangles, colors)
 
     def record(tree):
@@ -183,11 +193,11 @@ def encode_glb(positions, triangles, colors, y_up=False, rotation=None) -> bytes
 
 def encode_obj(positions, triangles, colors, y_up=False, rotation=None) -> bytes:
     from trimesh.exchange.obj import export_obj
-    rot = Y_UP if y_up and rotation is None else rotation
+    rot = _rotation(y_up, rotation)
     mesh = _trimesh(_placed(positions, rot), triangles, colors)
     header = "tsplus-wgpu mesh, vertex colours as 'v x y z r g b'"
     if rot is not None:
-        header += f"\n# {FRAME_KEY} " + " ".join(f"{v:.17g}" for v in np.asarray(rot, float).ravel())
+        header += f"\n# {_record(rot)}"
     text = export_obj(mesh, include_normals=False, include_color=True, include_texture=False, digits=9,
                       header=header)
     return text.encode()
@@ -231,15 +241,14 @@ def export(model: TriangleModel, path, fmt=None, colors=None, y_up=False, rotati
     if model.num_triangles == 0:
         raise ExportError("the mesh has no triangles; nothing to export")
     colors = dc_colors(model) if colors is None else np.asarray(colors, np.float64)
-    rot = Y_UP if y_up and rotation is None else rotation
+    rot = _rotation(y_up, rotation)
     if fmt == "ply":
         if rot is not None:
             model = TriangleModel(_placed(model.positions, rot), model.triangles, model.sh, model.opacity)
         data = encode_ply(model, colors)
         if rot is not None:                      # recorded as a header comment after the format line
             at = data.index(b"\n", data.index(b"format ")) + 1
-            line = f"comment {FRAME_KEY} " + " ".join(f"{v:.17g}" for v in np.asarray(rot, float).ravel())
-            data = data[:at] + line.encode() + b"\n" + data[at:]
+            data = data[:at] + f"comment {_record(rot)}\n".encode() + data[at:]
     elif fmt == "glb":
         data = encode_glb(model.positions, model.triangles, colors, rotation=rot)
     else:
