@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from tsplus_wgpu.data import SceneError, load_scene
+from tsplus_wgpu.data.cache import describe
 from tsplus_wgpu.data.images import resize_area, write_image
 
 
@@ -39,6 +40,10 @@ def test_photos_only_sfm_recovers_cup_poses(tmp_path, cup_near):
     print(f"photos-only SfM: {len(sc.cameras)}/10 registered, relative rotation error "
           f"mean {np.mean(errs):.3f} max {np.max(errs):.3f} deg")
     assert max(errs) < 2.0
+    entry, = (tmp_path / "cache").glob("sfm_*")       # only what a later load reads is kept
+    assert sorted(p.name for p in entry.iterdir()) == ["done.json", "sparse"]
+    assert [p.name for p in (entry / "sparse").iterdir()] == ["0"]
+    assert describe(entry).source == str(photos) and describe(entry).finished and not describe(entry).spare
     again = load_scene(photos, split="none", cache_dir=tmp_path / "cache")
     assert any("reused cached SfM model" in w for w in again.warnings)
     assert np.array_equal(again.points, sc.points)
@@ -55,6 +60,7 @@ def test_photos_only_sfm_of_a_tiny_unmatchable_set(tmp_path):
         write_image(tmp_path / f"flat_{i}.png", np.full((90, 120, 3), 0.3 + 0.1 * i) + 0.01 * rng.random((90, 120, 3)))
     with pytest.raises(SceneError, match=r"registered only 0 of 4 photos|SfM failed"):
         load_scene(tmp_path, cache_dir=tmp_path / "cache")
+    assert not list((tmp_path / "cache").glob("sfm_*"))     # nothing half made left in the cache
 
 
 def test_ordered_pairs_follow_the_natural_name_order():
@@ -169,6 +175,7 @@ def test_photos_of_two_lenses_get_a_camera_each(tmp_path, monkeypatch):
     per lens, with focal lengths a factor 2 apart, instead of one focal length for both; so do two
     phones of one focal length, and photos without EXIF at two sizes (a camera a size, not a
     camera a photo); one lens keeps one camera and the cache key the folder had before."""
+    import shutil
     import sqlite3
     from tsplus_wgpu.data import photos
     from tsplus_wgpu.data.sfm import _fingerprint
@@ -176,7 +183,9 @@ def test_photos_of_two_lenses_get_a_camera_each(tmp_path, monkeypatch):
 
     def extract_then_stop(pycolmap, db, *a, **k):
         real(pycolmap, db, *a, **k)
-        dbs.append(db)
+        keep = tmp_path / f"{db.parent.name}.db"       # the failed entry leaves the cache: a copy to read
+        shutil.copy(db, keep)
+        dbs.append(keep)
         raise RuntimeError("stop here")
 
     monkeypatch.setattr(photos, "_extract_and_match", extract_then_stop)
@@ -200,7 +209,7 @@ def test_photos_of_two_lenses_get_a_camera_each(tmp_path, monkeypatch):
         assert len(by_image) == 6, case
         if case == "one":
             assert len(cams) == 1
-            assert (tmp_path / "cache" / f"sfm_{_fingerprint([folder / n for n in names], '')[:16]}").is_dir()
+            assert dbs[-1].stem == f"sfm_{_fingerprint([folder / n for n in names], '')[:16]}"
             continue
         assert len(cams) == 2, case
         even, odd = {by_image[n] for n in names[0::2]}, {by_image[n] for n in names[1::2]}

@@ -125,6 +125,7 @@ def test_bad_videos_are_one_line_errors(tmp_path, blurry_video):
     short = write_video(tmp_path / "short.mp4", [texture(3), texture(4)])
     with pytest.raises(SceneError, match=r"short\.mp4: 2 frame\(s\) decoded, SfM needs at least 3"):
         load_scene(short, cache_dir=tmp_path / "cache")
+    assert not list((tmp_path / "cache").glob("video_*"))   # nothing half made left in the cache
     with pytest.raises(SceneError, match="at least 3 frames"):
         extract_frames(blurry_video[0], tmp_path / "f", count=2)
     assert not (tmp_path / "f").exists()

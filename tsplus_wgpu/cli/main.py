@@ -25,6 +25,7 @@ examples:
   tsplus view runs/small --walk                  walk through it: gravity and collision against the mesh
   tsplus select runs/small --masks masks/        extract the masked object (object.ply/glb) and remove it
   tsplus train --out runs/live --view            watch training live in a window
+  tsplus cache --clean                           free the cache of SfM models and points (what stopped jobs left)
 
 environment:
   TSPLUS_ADAPTER   adapter to use (substring of its name; 'lavapipe' = Mesa's CPU driver)
@@ -54,6 +55,7 @@ COMMANDS = {
     "bench-backward": ("bench", "add_backward_parser"),
     "bench-scale": ("bench", "add_scale_parser"),
     "bench-step": ("bench", "add_step_parser"),
+    "cache": ("cache", "add_parser"),
 }
 
 

@@ -171,6 +171,7 @@ def jpeg_folder(photo_dir, cache=None, progress: bool = False, warnings=None) ->
     the user cache; made on the first call, reused while the photos are unchanged. A HEIF photo
     that cannot be decoded is left out with a warning naming it; when fewer than 3 photos are
     left, the first such photo's error is raised."""
+    from .cache import mark_used  # noqa: PLC0415
     from .sfm import cache_root  # noqa: PLC0415
     photo_dir = Path(photo_dir)
     warnings = warnings if warnings is not None else []
@@ -185,6 +186,7 @@ def jpeg_folder(photo_dir, cache=None, progress: bool = False, warnings=None) ->
     if rec is not None and _holds(out, rec["others"] + list(rec["jpeg"].values())):
         warnings.extend(rec.get("warnings", []))
         warnings.append(f"reused the JPEG copies of {len(rec['jpeg'])} HEIC/HEIF photos: {out}")
+        mark_used(work)
         return out
     Image = _opener(photo_dir / heif[0])
     tmp = work / _tmp_name()

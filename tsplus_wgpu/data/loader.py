@@ -447,7 +447,8 @@ def _triangulated(specs, background, train_idx, cache_dir, progress, warnings,
     sub = [specs[i] for i in use]
     try:
         pts, cols, info = triangulate_frames(lambda i: full_size_frame(sub[i], background), [f.name for f in sub],
-                                             _triangulation_key(sub, background), croot, progress=progress)
+                                             _triangulation_key(sub, background), croot, progress=progress,
+                                             source=Path(sub[0].path).parent)
     except RuntimeError as exc:
         warnings.append(f"{exc}: {fallback}")
         return None

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from .errors import SceneError
 from .images import list_images, read_image_size
+from .cache import mark_used, trim
 from .sfm import (SEQUENTIAL_OVERLAP, _extract_and_match, _fingerprint, _Progress, _pycolmap, cache_root,
                   sfm_threads)
 
@@ -87,6 +88,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     model_dir = work / "sparse" / "0"
     if (model_dir / "cameras.bin").is_file() and (work / "done.json").is_file():
         warnings.append(f"reused cached SfM model {model_dir}")
+        mark_used(work)
         return model_dir
     if work.exists():
         shutil.rmtree(work, ignore_errors=True)
@@ -95,6 +97,20 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     except OSError as exc:
         raise SceneError(f"{work}: cannot create the SfM cache folder ({exc.strerror}); set TSPLUS_CACHE or "
                          "XDG_CACHE_HOME to a writable folder") from None
+    try:
+        nreg = _registered(pycolmap, work, photo_dir, names, label, sequential, ordered, groups, progress, warnings)
+    except BaseException:       # failed or stopped: nothing half made stays in the cache
+        shutil.rmtree(work, ignore_errors=True)
+        raise
+    (work / "done.json").write_text(json.dumps({"images": list(names), "registered": nreg, "folder": str(label)}))
+    trim(work, "sfm")           # the feature database and the other models: not read again
+    return model_dir
+
+
+def _registered(pycolmap, work, photo_dir, names, label, sequential, ordered, groups, progress, warnings) -> int:
+    """The SfM of :func:`run_photos_sfm` into its cache entry ``work``: the model written to
+    ``work/sparse/0``; returns how many photos it registers."""
+    model_dir = work / "sparse" / "0"
     prog = _Progress(progress, len(names) * (STEP_SECONDS["image"] + STEP_SECONDS["register"])
                      + _pair_count(names, sequential or ordered) * STEP_SECONDS["pair"],
                      f"SfM on {len(names)} photos", weighted=True)
@@ -118,8 +134,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
         warnings.append(f"SfM registered {nreg} of {len(names)} photos; the others are skipped")
     model_dir.mkdir(parents=True, exist_ok=True)
     best.write(str(model_dir))
-    (work / "done.json").write_text(json.dumps({"images": list(names), "registered": nreg}))
-    return model_dir
+    return nreg
 
 
 def _pair_count(names, in_order: bool) -> int:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import json
 import os
 import shutil
 import sys
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .cache import mark_used, trim
 from .errors import SceneError
 from .guided import add_guided_matches
 from .images import write_image
@@ -359,7 +361,7 @@ def triangulate_known_poses(cameras: list, images: list, names: list, cache_dir:
 
 
 def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progress: bool = True,
-                       max_image_size: int = 1600, exhaustive_max: int = 30):
+                       max_image_size: int = 1600, exhaustive_max: int = 30, source=None):
     """Triangulate points with fixed known poses from images loaded one at a time.
 
     Args:
@@ -368,7 +370,8 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
         names: the images' names (for the progress display).
         key: cache key naming the images' content, cameras and parameters.
         cache_dir: cache folder; the result is ``cache_dir/tri_<key>/points.npz`` (a cached file
-            without the tracks, from an older version, is computed again).
+            without the tracks, from an older version, is computed again), alone (:func:`~.cache.trim`).
+        source: the images' folder, recorded for ``tsplus cache``.
 
     Returns / Raises: as :func:`triangulate_known_poses`; ``info["tracks"]`` is the points' track
     table (:mod:`.tracks`) whose ids index ``names``.
@@ -385,6 +388,7 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
                 if "track_offsets" in z.files and "track_frames" in z.files:  # else stale (older version)
                     tracks = (z["track_offsets"].astype(np.int64), z["track_frames"].astype(np.int32))
                     check_tracks(tracks, len(z["xyz"]), len(names))
+                    mark_used(work)
                     return z["xyz"], z["rgb"], {"cached": str(result), "mean_reprojection_error": float(z["err"]),
                                                 "tracks": tracks}
         except Exception:  # a damaged cache entry: compute again
@@ -394,8 +398,20 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
     img_dir = work / "images"
     try:
         img_dir.mkdir(parents=True, exist_ok=True)
+        (work / "about.json").write_text(json.dumps({"source": source and str(source), "images": len(names)}))
     except OSError as exc:
         raise RuntimeError(f"cache folder {work} cannot be written ({exc.strerror})") from None
+    try:
+        return _triangulated_points(pycolmap, work, load_one, names, progress, max_image_size, exhaustive_max)
+    except BaseException:       # failed, stopped or the disk full: nothing half made stays in the cache
+        shutil.rmtree(work, ignore_errors=True)
+        raise
+
+
+def _triangulated_points(pycolmap, work, load_one, names, progress, max_image_size, exhaustive_max):
+    """The work of :func:`triangulate_frames` once its cache entry ``work`` is made: the images
+    written, triangulated, the result saved as ``work/points.npz`` and the rest removed."""
+    img_dir, result = work / "images", work / "points.npz"
     cameras, safe, frame_of = [], [], []   # frame_of[k]: the index into names of safe[k]
     for i in range(len(names)):
         got = load_one(i)
@@ -420,7 +436,7 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
     tmp = work / f"points.tmp{os.getpid()}.npz"
     np.savez(tmp, xyz=xyz, rgb=rgb, err=err, track_offsets=tracks[0], track_frames=tracks[1])
     os.replace(tmp, result)
-    shutil.rmtree(img_dir, ignore_errors=True)
+    trim(work, "tri")
     return xyz, rgb, {"mean_reprojection_error": err, "reconstruction": rec, "work": str(work), "tracks": tracks}
 
 

@@ -180,6 +180,7 @@ def video_frames_dir(video, cache=None, count: int = DEFAULT_FRAMES, progress: b
     """The folder of ``video``'s chosen frames (:func:`extract_frames`) in the user cache
     (:func:`~tsplus_wgpu.data.sfm.cache_root`), extracted on the first call and reused while the
     video's bytes, ``count`` and :data:`RECIPE` are unchanged."""
+    from .cache import mark_used  # noqa: PLC0415
     from .sfm import cache_root, file_digest  # noqa: PLC0415
     video = Path(video)
     warnings = warnings if warnings is not None else []
@@ -191,6 +192,7 @@ def video_frames_dir(video, cache=None, count: int = DEFAULT_FRAMES, progress: b
     frames = work / "frames"
     if is_frames_folder(frames):
         warnings.append(f"reused cached frames of {video.name}: {frames}")
+        mark_used(work)
         return frames
     try:
         work.mkdir(parents=True, exist_ok=True)
@@ -198,7 +200,11 @@ def video_frames_dir(video, cache=None, count: int = DEFAULT_FRAMES, progress: b
         raise SceneError(f"{work}: cannot create the frames' cache folder ({exc.strerror}); set TSPLUS_CACHE or "
                          "XDG_CACHE_HOME to a writable folder") from None
     shutil.rmtree(frames, ignore_errors=True)     # an unfinished folder without its manifest
-    extract_frames(video, frames, count, progress)
+    try:
+        extract_frames(video, frames, count, progress)
+    except BaseException:       # unreadable, stopped or the disk full: nothing half made stays in the cache
+        shutil.rmtree(work, ignore_errors=True)
+        raise
     return frames
 
 
