@@ -109,9 +109,18 @@ def main(argv=None):
             traceback.print_exc()
         print(f"tsplus: error: {line}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("tsplus: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc)
+
+
+def _interrupted(exc) -> int:
+    """Ctrl-C, or SIGTERM / SIGHUP during a pycolmap call (:class:`~tsplus_wgpu.data.sfm.Stopped`):
+    one line and the exit status 128 + the signal."""
+    import signal
+    signum = getattr(exc, "signum", None) or signal.SIGINT
+    print(f"tsplus: {'interrupted' if signum == signal.SIGINT else f'stopped by {signal.Signals(signum).name}'}",
+          file=sys.stderr)
+    return 128 + int(signum)
 
 
 #: errno -> (what happened, what to do) for a file the command read or wrote

@@ -16,10 +16,7 @@ import hashlib
 import json
 import os
 import shutil
-import sys
 import tempfile
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +25,7 @@ from .cache import mark_used, trim
 from .errors import SceneError
 from .guided import add_guided_matches
 from .images import write_image
+from .long_calls import Stopped, _Progress, stoppable  # noqa: F401  (Stopped: re-exported)
 from .tracks import check as check_tracks
 from .tracks import of_pycolmap_points as tracks_of_points
 
@@ -89,107 +87,6 @@ def _pycolmap():
     except AttributeError:  # pragma: no cover
         pass
     return pycolmap
-
-
-class _Progress:
-    """Stage progress on stderr (tqdm when available); silent when disabled."""
-
-    def __init__(self, enabled: bool, total: float, desc: str, weighted: bool = False):
-        """``weighted``: ``total`` and the advances are estimated seconds, not steps: the bar shows
-        the share done and the time left, not a count."""
-        self.enabled = enabled
-        self.weighted = weighted
-        self.bar = None
-        self.t0 = time.time()
-        self._lock = threading.Lock()
-        if enabled:
-            try:
-                from tqdm import tqdm  # noqa: PLC0415
-                fmt = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}{postfix}]" if weighted else None
-                self.bar = tqdm(total=total, desc=desc, unit="step", file=sys.stderr, leave=True, bar_format=fmt)
-            except ImportError:  # pragma: no cover
-                print(f"{desc} ...", file=sys.stderr)
-
-    def stage(self, text: str, advance: float = 1):
-        if not self.enabled:
-            return
-        if self.bar is not None:
-            with self._lock:
-                self.bar.set_postfix_str(text)
-                self.bar.update(advance)
-        else:  # pragma: no cover
-            print(f"  {text} ({time.time() - self.t0:.0f}s)", file=sys.stderr)
-
-    def add(self, more: float):
-        """Make the work ``more`` larger (a stage that was not planned)."""
-        if self.bar is not None:
-            self.bar.total += more
-            self.bar.refresh()
-
-    def creep(self, units: float, tick: float | None = None):
-        """A context for one long call that reports nothing (pycolmap's feature extraction, its
-        matching): inside it a ``weighted`` bar moves on by itself towards ``units`` more, never
-        past 90 % of them, at the pace of the work before it (before any: the units' own, an
-        estimated second of the reference machine each), so its time left keeps meaning
-        something; leaving it adds the rest. A bar of whole steps only gets the rest at the end.
-        ``tick``: seconds between moves (default: a 300th of the units, at least 1)."""
-        return _Creep(self, units, tick if tick is not None else max(1.0, units / 300.0))
-
-    def finish(self):
-        """Fill the bar: the work is done (estimates, such as photos that never register, may
-        leave a share unspent)."""
-        if self.bar is not None:
-            self._advance(self.bar.total - self.bar.n)
-
-    def _advance(self, units: float):
-        if self.bar is not None and units > 0:
-            with self._lock:
-                self.bar.update(units)
-
-    def note(self, text: str):
-        if self.enabled and self.bar is not None:
-            self.bar.set_postfix_str(text)
-            self.bar.refresh()
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
-
-
-class _Creep:
-    """:meth:`_Progress.creep`: a thread that advances the bar while the block runs."""
-
-    def __init__(self, prog: _Progress, units: float, tick: float):
-        self.prog, self.units, self.tick = prog, float(units), float(tick)
-        self.moved, self.stop, self.thread = 0.0, threading.Event(), None
-
-    def __enter__(self):
-        bar = self.prog.bar
-        if bar is None or self.units <= 0 or not self.prog.weighted:
-            return self
-        done = bar.n
-        spent = time.time() - self.prog.t0
-        pace = spent / done if done > 0 and spent > 0 else 1.0      # seconds a unit, so far
-        t0 = time.time()
-
-        def run():
-            while not self.stop.wait(self.tick):
-                target = min(0.9 * self.units, (time.time() - t0) / pace)
-                if target > self.moved:
-                    self.prog._advance(target - self.moved)
-                    self.moved = target
-
-        self.thread = threading.Thread(target=run, name="sfm-progress", daemon=True)
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc):
-        if self.thread is not None:
-            self.stop.set()
-            self.thread.join()
-        if exc[0] is None:
-            self.prog._advance(self.units - self.moved)
-        return False
 
 
 def cache_root(scene_dir=None, override=None) -> tuple[Path, str | None]:
@@ -256,12 +153,12 @@ def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, ca
     reader.camera_model = camera_model
     with progress.creep(extract_units) if progress else contextlib.nullcontext():
         for part in groups or [names]:
-            pycolmap.extract_features(db, img_dir, image_names=list(part), camera_mode=camera_mode,
-                                      reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
+            stoppable(pycolmap.extract_features, db, img_dir, image_names=list(part), camera_mode=camera_mode,
+                      reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
     if progress:
         progress.stage("matching", 0)
     with progress.creep(match_units) if progress and match_units else contextlib.nullcontext():
-        _match(pycolmap, db, sequential, pairs)
+        stoppable(_match, pycolmap, db, sequential, pairs)
 
 
 def _match(pycolmap, db, sequential, pairs):
@@ -453,8 +350,8 @@ def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaus
                            small_images=max(cameras[0].width, cameras[0].height) < 1200)
         rec = _posed_reconstruction(pycolmap, db, cameras, safe)
         prog.stage("matching along the known epipolar lines")
-        add_guided_matches(pycolmap, db, rec, _neighbour_pairs(cameras, safe, k=GUIDED_NEIGHBOURS),
-                           on_pair=lambda k, n: prog.note(f"matching along the known epipolar lines: pair {k}/{n}"))
+        stoppable(add_guided_matches, pycolmap, db, rec, _neighbour_pairs(cameras, safe, k=GUIDED_NEIGHBOURS),
+                  on_pair=lambda k, n: prog.note(f"matching along the known epipolar lines: pair {k}/{n}"))
         prog.stage("triangulating")
         out = work / "sparse"
         out.mkdir(exist_ok=True)
@@ -463,7 +360,7 @@ def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaus
         opts.triangulation.min_angle = TRIANGULATION_MIN_ANGLE
         opts.mapper.filter_min_tri_angle = TRIANGULATION_MIN_ANGLE
         opts.triangulation.ignore_two_view_tracks = False
-        rec = pycolmap.triangulate_points(rec, db, img_dir, out, options=opts)
+        rec = stoppable(pycolmap.triangulate_points, rec, db, img_dir, out, options=opts)
         prog.stage("done")
     except Exception as exc:
         raise RuntimeError(f"pycolmap triangulation failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}") from None
