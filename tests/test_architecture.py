@@ -276,3 +276,13 @@ def test_viewer_uses_the_public_api_only():
             elif isinstance(node, ast.Import):
                 bad += [f"{p.name}:{node.lineno} import {a.name}" for a in node.names if a.name.startswith("tsplus_wgpu.")]
     assert not bad, "\n".join(bad)
+
+
+def test_pycolmap_is_imported_in_one_place():
+    """pycolmap's first import installs COLMAP's crash-report handler for SIGTERM; only
+    ``data/long_calls.import_pycolmap`` puts the command's own handler back, so no other module
+    may import it (a new ``import pycolmap`` elsewhere would bring the crash report back)."""
+    import re
+    found = [str(p.relative_to(ROOT)) for p in sorted(list(PKG.rglob("*.py")) + list((ROOT / "viewer").rglob("*.py")))
+             if re.search(r"^\s*(import pycolmap|from pycolmap import)", p.read_text(), re.M)]
+    assert found == ["tsplus_wgpu/data/long_calls.py"], found

@@ -305,3 +305,24 @@ def test_eval_run_takes_its_own_scene(finished, tmp_path, capsys):
     cfg["extra"]["scene"] = str(tmp_path / "gone")
     (run / "config.json").write_text(json.dumps(cfg))
     _one_error_line(_main(capsys, "eval", run, "--no-splat"), "gone", "give SCENE")
+
+
+def test_a_signal_while_exporting_keeps_the_training(finished, tmp_path, monkeypatch, capsys):
+    """SIGTERM during the end of training (the colour fit, the export: minutes on a large scene)
+    saves the checkpoint first: `--resume` then exports the same mesh as an uninterrupted run.
+    Before, the training of the whole run was lost (the loop writes no checkpoint at its end)."""
+    from tsplus_wgpu.cli import train as cli_train
+    from tsplus_wgpu.data.sfm import Stopped
+
+    def stopped(*a, **k):
+        raise Stopped(signal.SIGTERM)
+    monkeypatch.setattr(cli_train, "_finish", stopped)
+    out = tmp_path / "run"
+    r = _main(capsys, *TRAIN, "--checkpoint-every", "0", "--out", out)
+    assert r.returncode == 128 + signal.SIGTERM, r.stderr
+    assert r.stderr.strip() == (f"tsplus: SIGTERM while exporting the mesh at iteration {ITERATIONS}; checkpoint saved "
+                                f"to {out / 'checkpoint.npz'}; `--resume` exports it")
+    assert not (out / "mesh.ply").exists() and not (out / "metrics.json").exists()
+    r = _cli(*TRAIN, "--out", out, "--resume")
+    assert r.returncode == 0, r.stderr
+    assert (out / "mesh.ply").read_bytes() == (finished / "mesh.ply").read_bytes()

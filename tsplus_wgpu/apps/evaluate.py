@@ -128,7 +128,8 @@ def screened_poisson(pts, normals, depth=9, point_weight=0.1, workdir=None):
     different mesh from run to run). Returns ``(positions, triangles)``."""
     import tempfile
 
-    import pycolmap
+    from ..data.long_calls import import_pycolmap
+    pycolmap = import_pycolmap()
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         src, dst = Path(tmp) / "points.ply", Path(tmp) / "poisson.ply"
         _write_oriented_ply(src, pts, normals)

@@ -95,11 +95,16 @@ def main(argv=None):
         parser.print_help()
         return 0
     from ..data.errors import SceneError
+    from ..data.long_calls import restore_signals, stop_on_signals
     from ..gpu.context import NoAdapterError
     try:
         from ..data.sfm import sfm_threads
         sfm_threads()   # a bad TSPLUS_SFM_THREADS is an error at the start, not after loading a scene
-        return command_module(args.command).run(args)
+        old = stop_on_signals()   # SIGTERM, SIGHUP: one line as for Ctrl-C, never COLMAP's crash report
+        try:
+            return command_module(args.command).run(args)
+        finally:
+            restore_signals(old)
     except (UserError, NoAdapterError, SceneError, ValueError, OSError, MemoryError) as exc:
         line = error_line(exc)
         if line is None:                # not the user's or the environment's doing: a bug, with its traceback

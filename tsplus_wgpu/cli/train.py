@@ -358,5 +358,13 @@ def run(args):
     finally:
         if viewer is not None:
             viewer.close()
-    _finish(trainer, scene, out, ckpt, psnr0)
+    try:
+        _finish(trainer, scene, out, ckpt, psnr0)
+    except KeyboardInterrupt as exc:      # Ctrl-C, SIGTERM or SIGHUP during the export: keep the training
+        import signal
+        signum = getattr(exc, "signum", None) or signal.SIGINT
+        trainer.save_checkpoint(ckpt)
+        print(f"tsplus: {signal.Signals(signum).name} while exporting the mesh at iteration {trainer.iteration}; "
+              f"checkpoint saved to {ckpt}; `--resume` exports it", file=sys.stderr)
+        return 128 + int(signum)
     return 0

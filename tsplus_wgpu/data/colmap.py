@@ -17,6 +17,7 @@ import numpy as np
 from ..types import Camera
 from .colmap_check import MODEL_FILES, check_model
 from .errors import SceneError
+from .long_calls import import_pycolmap
 from .plausible import MAX_COORD, MAX_DISTORTION, check_focal
 from .scene import FrameSpec, check_pose
 from .tracks import of_pycolmap_points
@@ -28,7 +29,7 @@ __all__ = ["MODEL_FILES", "PINHOLE_MODELS", "colmap_frames", "colmap_tracks", "f
 
 def _pycolmap():
     try:
-        import pycolmap  # noqa: PLC0415
+        pycolmap = import_pycolmap()
     except ImportError:  # pragma: no cover
         raise SceneError("pycolmap is missing: install it with `pip install pycolmap`") from None
     return pycolmap
@@ -169,7 +170,7 @@ def colmap_tracks(rec, names):
 
 def _check_distortion(pycolmap_cam, model, cam_id, where):
     """The distortion parameters of a non-pinhole camera are plausible, and undistorting keeps most of the image."""
-    import pycolmap  # noqa: PLC0415
+    pycolmap = import_pycolmap()
     params = list(pycolmap_cam.params)
     for i in pycolmap_cam.extra_params_idxs():
         if not abs(params[i]) <= MAX_DISTORTION:

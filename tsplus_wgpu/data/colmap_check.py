@@ -35,7 +35,8 @@ _PT_HEAD = struct.Struct("<Q3d3BdQ")
 def model_table() -> dict:
     """Every COLMAP camera model pycolmap knows: ``name -> (model id, number of parameters,
     indices of the distortion parameters)``."""
-    import pycolmap  # noqa: PLC0415
+    from .long_calls import import_pycolmap  # noqa: PLC0415
+    pycolmap = import_pycolmap()
     table = {}
     for name, mid in pycolmap.CameraModelId.__members__.items():
         if name == "INVALID":

@@ -17,6 +17,44 @@ class Stopped(KeyboardInterrupt):
         self.signum = signum
 
 
+#: the signals that stop a command outside training (Ctrl-C raises KeyboardInterrupt by itself)
+STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+def _stop(signum, frame):
+    raise Stopped(signum)
+
+
+def stop_on_signals() -> dict:
+    """From now on SIGTERM and SIGHUP raise :class:`Stopped` in the main thread, as Ctrl-C raises
+    KeyboardInterrupt (what ``tsplus`` does for every command; training puts its own handlers,
+    which write a checkpoint, in their place while it runs). A signal the process ignores stays
+    ignored (``nohup``). Returns the handlers replaced, for :func:`restore_signals`."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {sig: signal.signal(sig, _stop) for sig in STOP_SIGNALS if signal.getsignal(sig) != signal.SIG_IGN}
+
+
+def restore_signals(old: dict) -> None:
+    """Put back the handlers :func:`stop_on_signals` or :func:`stoppable` replaced."""
+    for sig, handler in old.items():
+        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
+def import_pycolmap():
+    """``pycolmap``, imported. Its logging library installs, at the first import, a handler that
+    answers SIGTERM with a crash report of the C++ stack, over whatever handler Python code had
+    installed: that one is put back (none was: the library's stays). Every import of pycolmap in
+    the package goes through here (tests/test_architecture.py)."""
+    import pycolmap  # noqa: PLC0415
+    if threading.current_thread() is threading.main_thread():
+        for sig in STOP_SIGNALS:
+            handler = signal.getsignal(sig)
+            if callable(handler):
+                signal.signal(sig, handler)
+    return pycolmap
+
+
 def stoppable(fn, *args, **kwargs):
     """``fn(*args, **kwargs)``, a long pycolmap call, in which SIGTERM and SIGHUP raise
     :class:`Stopped` as Ctrl-C raises KeyboardInterrupt. pycolmap runs Python's signal handlers
@@ -26,19 +64,11 @@ def stoppable(fn, *args, **kwargs):
     (``nohup``: SIGHUP); from another thread the call runs as it is."""
     if threading.current_thread() is not threading.main_thread():
         return fn(*args, **kwargs)
-
-    def stop(signum, frame):
-        raise Stopped(signum)
-    old = {}
-    for name in ("SIGTERM", "SIGHUP"):
-        sig = getattr(signal, name, None)
-        if sig is not None and signal.getsignal(sig) != signal.SIG_IGN:
-            old[sig] = signal.signal(sig, stop)
+    old = stop_on_signals()
     try:
         return fn(*args, **kwargs)
     finally:
-        for sig, handler in old.items():
-            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        restore_signals(old)
 
 
 class _Progress:

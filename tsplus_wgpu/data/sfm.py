@@ -25,7 +25,7 @@ from .cache import mark_used, trim
 from .errors import SceneError
 from .guided import add_guided_matches
 from .images import write_image
-from .long_calls import Stopped, _Progress, stoppable  # noqa: F401  (Stopped: re-exported)
+from .long_calls import Stopped, _Progress, import_pycolmap, stoppable  # noqa: F401  (Stopped: re-exported)
 from .tracks import check as check_tracks
 from .tracks import of_pycolmap_points as tracks_of_points
 
@@ -78,7 +78,7 @@ def sfm_threads() -> int:
 
 def _pycolmap():
     try:
-        import pycolmap  # noqa: PLC0415
+        pycolmap = import_pycolmap()
     except ImportError:  # pragma: no cover
         raise SceneError("pycolmap is missing: install it with `pip install pycolmap`") from None
     try:  # COLMAP's own INFO log is far too chatty for a command line tool

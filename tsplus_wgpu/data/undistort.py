@@ -92,7 +92,8 @@ class ColmapUndistorter:
         self._cache = {}
 
     def __call__(self, img, camera: Camera):
-        import pycolmap  # noqa: PLC0415
+        from .long_calls import import_pycolmap  # noqa: PLC0415
+        pycolmap = import_pycolmap()
         h, w = img.shape[:2]
         key = (w, h)
         if key not in self._cache:
