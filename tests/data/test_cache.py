@@ -137,6 +137,8 @@ def test_a_signal_during_sfm_is_one_line_and_leaves_no_entry(sig, tmp_path, cup_
     import subprocess
     import sys
     from tsplus_wgpu.data.images import resize_area, write_image
+    if signal.getsignal(getattr(signal, sig)) == signal.SIG_IGN:     # e.g. under nohup: the command inherits it
+        pytest.skip(f"{sig} is ignored in this process, so the command keeps ignoring it")
     ref, order = cup_near
     photos, cache = tmp_path / "photos", tmp_path / "cache"
     photos.mkdir()

@@ -71,7 +71,7 @@ def _bake(args, model, info):
 
 def _engine_frame(args, info):
     """``(rotation or None, words)``: how ``--y-up`` turns this run's world into an engine's."""
-    from ..data.upright import Upright, engine_rotation, scene_upright
+    from ..data.upright import Upright, engine_rotation, files_upright, scene_upright
     if not args.y_up:
         return None, ""
     if args.up_from == "world":
@@ -80,12 +80,13 @@ def _engine_frame(args, info):
     scene_arg = args.scene or info.get("scene")
     if up is None and scene_arg:
         from ..data.errors import SceneError
-        from ..data.loader import load_scene
+        from ..data.loader import load_scene_arg, scene_cameras
         images = args.images or (None if args.scene else info.get("images"))
         try:
-            scene = load_scene(scene_arg, images=images, points="none",
-                               downscale=int(info.get("downscale") or 1) if not args.scene else 1)
-            up = scene_upright(scene)
+            if str(scene_arg).startswith("procedural"):
+                up = scene_upright(load_scene_arg(scene_arg))
+            else:                               # the poses and the photos' EXIF only: no pixel is read
+                up = files_upright(*scene_cameras(scene_arg, images))
         except (SceneError, UserError, OSError) as exc:
             print(f"warning: --y-up: the cameras of {scene_arg} could not be read ({exc}); written with the "
                   f"world's -y up", file=sys.stderr)

@@ -119,7 +119,7 @@ def main(argv=None):
 
 
 def _interrupted(exc) -> int:
-    """Ctrl-C, or SIGTERM / SIGHUP during a pycolmap call (:class:`~tsplus_wgpu.data.sfm.Stopped`):
+    """Ctrl-C, or SIGTERM / SIGHUP outside the training steps (:class:`~tsplus_wgpu.data.long_calls.Stopped`):
     one line and the exit status 128 + the signal."""
     import signal
     signum = getattr(exc, "signum", None) or signal.SIGINT

@@ -466,11 +466,18 @@ def frame_sizes(path, images=None, progress=False) -> list:
     shrinks further) the files' own. What plans a downscale (``tsplus train`` on a CPU);
     ``progress``: bars for a video's frames and the SfM."""
     from .images import read_image_size  # noqa: PLC0415
+    cameras, files = scene_cameras(path, images, progress)
+    if images is None:
+        return [(c.width, c.height) for c in cameras]
+    return [read_image_size(f) for f in files if f.is_file()]
+
+
+def scene_cameras(path, images=None, progress=False) -> tuple:
+    """``(cameras, image files)`` of every frame of the scene at ``path``, at full size, no pixel
+    read (a photo folder's SfM first, cached): for :func:`frame_sizes` and ``export --y-up``."""
     root = _scene_root(path, None, progress, [])
     _, specs, *_ = _read_format(root, images, 1.0, None, progress, [])
-    if images is None:
-        return [(f.camera.width, f.camera.height) for f in specs]
-    return [read_image_size(f.path) for f in specs if Path(f.path).is_file()]
+    return [f.camera for f in specs], [Path(f.path) for f in specs]
 
 
 def load_scene_arg(scene_arg, downscale=1, seed=0) -> Scene:

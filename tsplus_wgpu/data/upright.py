@@ -181,8 +181,13 @@ def engine_rotation(upright: Upright) -> np.ndarray:
 def scene_upright(scene) -> Upright | None:
     """:func:`estimate_up` of a loaded scene's cameras, with each photo's EXIF orientation where
     its file in ``scene.image_dir`` has one."""
-    axes = None
-    if getattr(scene, "image_dir", None):
-        folder = Path(scene.image_dir)
-        axes = [exif_up_axis(folder / name) for name in scene.image_names]
-    return estimate_up(scene.cameras, axes)
+    if not getattr(scene, "image_dir", None):
+        return estimate_up(scene.cameras)
+    return files_upright(scene.cameras, [Path(scene.image_dir) / name for name in scene.image_names])
+
+
+def files_upright(cameras, files) -> Upright | None:
+    """:func:`estimate_up` of ``cameras`` with the EXIF orientation of their photos ``files``
+    (where a file has one): the up of a scene from its cameras alone
+    (:func:`~tsplus_wgpu.data.loader.scene_cameras`), no pixel read."""
+    return estimate_up(cameras, [exif_up_axis(f) for f in files])
