@@ -138,7 +138,12 @@ def list_entries(root) -> list:
     root = Path(root)
     if not root.is_dir():
         return []
-    found = [describe(p) for p in root.iterdir()]
+    found = []
+    for p in root.iterdir():
+        try:
+            found.append(describe(p))
+        except OSError:         # removed meanwhile (another `tsplus cache --clean`), or unreadable
+            pass
     return sorted((e for e in found if e is not None), key=lambda e: (-e.used, e.path.name))
 
 
