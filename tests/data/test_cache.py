@@ -74,6 +74,10 @@ def cache(tmp_path):
     make(root, "sfm_dddd", {"done.json": 10, "sparse/0/cameras.bin": 50}, 40)
     make(root, "video_eeee", {"frames/frames.json": 10, "frames/frame_000001.jpg": 300}, 3)
     make(root, "heif_ffff", {"photos/a.jpg": 30}, 3)                          # no done.json: unfinished
+    (tmp_path / "IMG_1.jpg").write_bytes(b"x" * 4000)                         # the user's photo, and its
+    os.link(tmp_path / "IMG_1.jpg", root / "heif_ffff" / "photos" / "IMG_1.jpg")   # link in the mirror: frees nothing
+    for d in (root / "heif_ffff" / "photos", root / "heif_ffff"):
+        os.utime(d, (time.time() - 3 * 86400,) * 2)
     make(root, "notes", {"mine.txt": 5}, 100)                                 # not ours
     (root / "tri_file").write_bytes(b"x")                                     # not a folder: not ours
     return root
@@ -84,7 +88,7 @@ def test_entries_and_what_clean_removes(cache):
     assert sorted(es) == ["heif_ffff", "sfm_dddd", "tri_aaaa", "tri_bbbb", "tri_cccc", "video_eeee"]
     assert [n for n, e in sorted(es.items()) if e.finished] == ["sfm_dddd", "tri_aaaa", "video_eeee"]
     assert es["tri_aaaa"].size == 5810 and es["tri_aaaa"].spare == 5700 and es["sfm_dddd"].spare == 0
-    assert es["video_eeee"].size == 310
+    assert es["video_eeee"].size == 310 and es["heif_ffff"].size == 30
     names = lambda pairs: sorted(e.path.name for e, _ in pairs)   # noqa: E731
     remove, trims, busy = plan_clean(es.values())
     assert names(remove) == ["heif_ffff", "tri_bbbb"] and names(busy) == ["tri_cccc"]

@@ -50,7 +50,7 @@ __all__ = ["BUSY_SECONDS", "KEEP", "KINDS", "Entry", "human_size", "list_entries
 @dataclass(frozen=True)
 class Entry:
     """One cache entry: its folder, kind (a key of :data:`KINDS`), whether it is finished, its
-    size in bytes, when it was last made or used (seconds since the epoch), what it was made
+    size in bytes (what removing it frees: hard links to the user's photos count nothing), when it was last made or used (seconds since the epoch), what it was made
     from (a folder or file, where the entry records it) and the bytes of intermediate files a
     finished entry still holds (made before :func:`trim` existed)."""
     path: Path
@@ -77,18 +77,24 @@ def _finished(path: Path, kind: str) -> bool:
     return (path / "done.json").is_file() and (path / "photos").is_dir()
 
 
+def _freed(st) -> int:
+    """The bytes removing a file of ``lstat`` result ``st`` frees: none for a hard link to a file
+    that stays elsewhere (a HEIC mirror links the folder's JPEG photos), a link's own for a link."""
+    return st.st_size if st.st_nlink <= 1 else 0
+
+
 def _bytes(path: Path) -> int:
-    """Bytes of the files under ``path`` (links counted as links, never followed)."""
+    """Bytes that removing ``path`` frees (links never followed; :func:`_freed`)."""
     if not path.is_dir() or path.is_symlink():
         try:
-            return path.lstat().st_size
+            return _freed(path.lstat())
         except OSError:
             return 0
     total = 0
     for folder, _, files in os.walk(path):
         for f in files:
             try:
-                total += os.lstat(os.path.join(folder, f)).st_size
+                total += _freed(os.lstat(os.path.join(folder, f)))
             except OSError:
                 pass
     return total
