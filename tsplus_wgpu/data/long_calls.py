@@ -1,6 +1,6 @@
 """Long pycolmap calls on the command line: a progress bar that moves while a call reports
-nothing (:class:`_Progress`), and the calls run where a signal can stop the command
-(:func:`stoppable`)."""
+nothing (:class:`_Progress`), and signals that stop the command, even inside a call
+(:func:`stop_on_signals`, :func:`import_pycolmap`)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import threading
 import time
 
 class Stopped(KeyboardInterrupt):
-    """A command stopped by SIGTERM or SIGHUP (``signum``) during a pycolmap call (:func:`stoppable`)."""
+    """A command stopped by SIGTERM or SIGHUP (``signum``; :func:`stop_on_signals`)."""
 
     def __init__(self, signum):
         super().__init__(signum)
@@ -28,15 +28,18 @@ def _stop(signum, frame):
 def stop_on_signals() -> dict:
     """From now on SIGTERM and SIGHUP raise :class:`Stopped` in the main thread, as Ctrl-C raises
     KeyboardInterrupt (what ``tsplus`` does for every command; training puts its own handlers,
-    which write a checkpoint, in their place while it runs). A signal the process ignores stays
-    ignored (``nohup``). Returns the handlers replaced, for :func:`restore_signals`."""
+    which write a checkpoint, in their place while it runs). pycolmap runs Python's signal
+    handlers while it works, so a long call ends within a moment and the caller's cleanup runs
+    (a half-made cache entry is removed). A signal the process ignores stays ignored
+    (``nohup``). Returns the handlers replaced, for :func:`restore_signals`."""
     if threading.current_thread() is not threading.main_thread():
         return {}
     return {sig: signal.signal(sig, _stop) for sig in STOP_SIGNALS if signal.getsignal(sig) != signal.SIG_IGN}
 
 
 def restore_signals(old: dict) -> None:
-    """Put back the handlers :func:`stop_on_signals` or :func:`stoppable` replaced."""
+    """Put back the handlers ``old`` (signal -> handler) that a ``signal.signal`` call replaced
+    (None, a handler Python did not install, becomes the default)."""
     for sig, handler in old.items():
         signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
 
@@ -53,22 +56,6 @@ def import_pycolmap():
             if callable(handler):
                 signal.signal(sig, handler)
     return pycolmap
-
-
-def stoppable(fn, *args, **kwargs):
-    """``fn(*args, **kwargs)``, a long pycolmap call, in which SIGTERM and SIGHUP raise
-    :class:`Stopped` as Ctrl-C raises KeyboardInterrupt. pycolmap runs Python's signal handlers
-    while it works, so the call ends within a moment and the caller's cleanup runs (a half-made
-    cache entry is removed); without this, COLMAP's logging library answers SIGTERM with a crash
-    report of the C++ stack and leaves the entry. A signal the process ignores stays ignored
-    (``nohup``: SIGHUP); from another thread the call runs as it is."""
-    if threading.current_thread() is not threading.main_thread():
-        return fn(*args, **kwargs)
-    old = stop_on_signals()
-    try:
-        return fn(*args, **kwargs)
-    finally:
-        restore_signals(old)
 
 
 class _Progress:

@@ -17,7 +17,7 @@ from pathlib import Path
 from .errors import SceneError
 from .images import list_images, read_image_size
 from .cache import mark_used, trim
-from .long_calls import _Progress, stoppable
+from .long_calls import _Progress
 from .sfm import SEQUENTIAL_OVERLAP, _extract_and_match, _fingerprint, _pycolmap, cache_root, sfm_threads
 
 #: a folder of more photos than this is matched in the photos' natural name order like a video's
@@ -172,7 +172,7 @@ def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, w
         mopt = pycolmap.FeatureMatchingOptions()
         mopt.num_threads = sfm_threads()
         with prog.creep(rest * STEP_SECONDS["pair"]):
-            stoppable(pycolmap.match_exhaustive, db, matching_options=mopt, device=pycolmap.Device.cpu)
+            pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)
         shutil.rmtree(work / "sparse_all", ignore_errors=True)
         best = _mapping(pycolmap, db, photo_dir, work, prog)
     return best
@@ -194,7 +194,7 @@ def _mapping(pycolmap, db, photo_dir, work, prog):
 
     out = work / "sparse_all"
     out.mkdir(exist_ok=True)
-    recs = stoppable(pycolmap.incremental_mapping, db, photo_dir, out, options=opts, next_image_callback=on_image)
+    recs = pycolmap.incremental_mapping(db, photo_dir, out, options=opts, next_image_callback=on_image)
     return max(recs.values(), key=lambda r: r.num_reg_images()) if recs else None
 
 

@@ -25,7 +25,7 @@ from .cache import mark_used, trim
 from .errors import SceneError
 from .guided import add_guided_matches
 from .images import write_image
-from .long_calls import Stopped, _Progress, import_pycolmap, stoppable  # noqa: F401  (Stopped: re-exported)
+from .long_calls import Stopped, _Progress, import_pycolmap  # noqa: F401  (Stopped: re-exported)
 from .tracks import check as check_tracks
 from .tracks import of_pycolmap_points as tracks_of_points
 
@@ -153,12 +153,12 @@ def _extract_and_match(pycolmap, db: Path, img_dir: Path, names, camera_mode, ca
     reader.camera_model = camera_model
     with progress.creep(extract_units) if progress else contextlib.nullcontext():
         for part in groups or [names]:
-            stoppable(pycolmap.extract_features, db, img_dir, image_names=list(part), camera_mode=camera_mode,
-                      reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
+            pycolmap.extract_features(db, img_dir, image_names=list(part), camera_mode=camera_mode,
+                                      reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
     if progress:
         progress.stage("matching", 0)
     with progress.creep(match_units) if progress and match_units else contextlib.nullcontext():
-        stoppable(_match, pycolmap, db, sequential, pairs)
+        _match(pycolmap, db, sequential, pairs)
 
 
 def _match(pycolmap, db, sequential, pairs):
@@ -350,8 +350,8 @@ def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaus
                            small_images=max(cameras[0].width, cameras[0].height) < 1200)
         rec = _posed_reconstruction(pycolmap, db, cameras, safe)
         prog.stage("matching along the known epipolar lines")
-        stoppable(add_guided_matches, pycolmap, db, rec, _neighbour_pairs(cameras, safe, k=GUIDED_NEIGHBOURS),
-                  on_pair=lambda k, n: prog.note(f"matching along the known epipolar lines: pair {k}/{n}"))
+        add_guided_matches(pycolmap, db, rec, _neighbour_pairs(cameras, safe, k=GUIDED_NEIGHBOURS),
+                           on_pair=lambda k, n: prog.note(f"matching along the known epipolar lines: pair {k}/{n}"))
         prog.stage("triangulating")
         out = work / "sparse"
         out.mkdir(exist_ok=True)
@@ -360,7 +360,7 @@ def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaus
         opts.triangulation.min_angle = TRIANGULATION_MIN_ANGLE
         opts.mapper.filter_min_tri_angle = TRIANGULATION_MIN_ANGLE
         opts.triangulation.ignore_two_view_tracks = False
-        rec = stoppable(pycolmap.triangulate_points, rec, db, img_dir, out, options=opts)
+        rec = pycolmap.triangulate_points(rec, db, img_dir, out, options=opts)
         prog.stage("done")
     except Exception as exc:
         raise RuntimeError(f"pycolmap triangulation failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}") from None

@@ -66,8 +66,8 @@ class _StopSignals:
             self.signum = signum
 
     def restore(self):
-        for sig, old in self.old.items():
-            signal.signal(sig, old)
+        from ..data.long_calls import restore_signals  # noqa: PLC0415
+        restore_signals(self.old)
 
 
 class TrainLoop:
