@@ -54,6 +54,39 @@ def test_photos_only_sfm_recovers_cup_poses(tmp_path, cup_near):
 
 
 @pytest.mark.slow
+def test_photos_sfm_names_the_photos_it_skips_on_every_load(tmp_path, cup_near, monkeypatch):
+    """A photo SfM cannot place is named in a warning: on the first load, and again on every load
+    from the cache, `tsplus train`'s included (its plan runs the SfM, its load reuses it)."""
+    import json
+
+    from tsplus_wgpu.data.loader import frame_sizes
+    ref, order = cup_near
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for i in order[:6]:
+        write_image(photos / ref.image_names[i], resize_area(ref.images[i], 400, 300))
+    rng = np.random.default_rng(2)
+    write_image(photos / "zz_flat.png", np.full((300, 400, 3), 0.5) + 0.002 * rng.random((300, 400, 3)))
+    first = load_scene(photos, split="none", cache_dir=tmp_path / "cache")
+    said = [w for w in first.warnings if "SfM registered" in w]
+    assert said == [w for w in said if "6 of 7 photos" in w and "zz_flat.png" in w] and len(said) == 1
+    assert "zz_flat.png" not in first.image_names
+    again = load_scene(photos, split="none", cache_dir=tmp_path / "cache")
+    assert said[0] in again.warnings and any("reused cached SfM model" in w for w in again.warnings)
+    monkeypatch.setenv("TSPLUS_CACHE", str(tmp_path / "cache2"))     # tsplus train: the plan, then the load
+    assert frame_sizes(photos) == [(400, 300)] * 6
+    assert said[0] in load_scene(photos, split="none").warnings
+    entry, = (tmp_path / "cache").glob("sfm_*")
+    done = entry / "done.json"
+    rec = json.loads(done.read_text())
+    assert rec["warnings"] == said
+    del rec["warnings"]                       # an entry written before warnings were recorded
+    done.write_text(json.dumps(rec))
+    old = load_scene(photos, split="none", cache_dir=tmp_path / "cache")
+    assert any("SfM registered 6 of 7 photos" in w for w in old.warnings)
+
+
+@pytest.mark.slow
 def test_photos_only_sfm_of_a_tiny_unmatchable_set(tmp_path):
     rng = np.random.default_rng(1)
     for i in range(4):

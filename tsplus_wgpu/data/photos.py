@@ -87,6 +87,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     work = root / f"sfm_{_fingerprint([photo_dir / n for n in names], mode)[:16]}"
     model_dir = work / "sparse" / "0"
     if (model_dir / "cameras.bin").is_file() and (work / "done.json").is_file():
+        warnings.extend(_recorded_warnings(work / "done.json"))   # what the SfM said: every load says it again
         warnings.append(f"reused cached SfM model {model_dir}")
         mark_used(work)
         return model_dir
@@ -97,12 +98,14 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     except OSError as exc:
         raise SceneError(f"{work}: cannot create the SfM cache folder ({exc.strerror}); set TSPLUS_CACHE or "
                          "XDG_CACHE_HOME to a writable folder") from None
+    said = len(warnings)
     try:
         nreg = _registered(pycolmap, work, photo_dir, names, label, sequential, ordered, groups, progress, warnings)
     except BaseException:       # failed or stopped: nothing half made stays in the cache
         shutil.rmtree(work, ignore_errors=True)
         raise
-    (work / "done.json").write_text(json.dumps({"images": list(names), "registered": nreg, "folder": str(label)}))
+    (work / "done.json").write_text(json.dumps({"images": list(names), "registered": nreg, "folder": str(label),
+                                                "warnings": warnings[said:]}))
     trim(work, "sfm")           # the feature database and the other models: not read again
     return model_dir
 
@@ -131,10 +134,33 @@ def _registered(pycolmap, work, photo_dir, names, label, sequential, ordered, gr
         raise SceneError(f"{label}: SfM registered only {nreg} of {len(names)} photos (need {need}); "
                          "take more overlapping, sharp photos with texture, or remove the unrelated ones")
     if nreg < len(names):
-        warnings.append(f"SfM registered {nreg} of {len(names)} photos; the others are skipped")
+        got = {best.images[i].name for i in best.reg_image_ids()}
+        warnings.append(skipped_warning(nreg, names, [n for n in names if n not in got]))
     model_dir.mkdir(parents=True, exist_ok=True)
     best.write(str(model_dir))
     return nreg
+
+
+def skipped_warning(nreg: int, names: list, missing: list) -> str:
+    """The warning for photos SfM could not place, naming them (the first 8)."""
+    shown = ", ".join(missing[:8]) + (f" and {len(missing) - 8} more" if len(missing) > 8 else "")
+    return (f"SfM registered {nreg} of {len(names)} photos; skipped (SfM found no pose for them): {shown}; "
+            "more photos overlapping them would let SfM place them")
+
+
+def _recorded_warnings(done: Path) -> list:
+    """The warnings a finished SfM entry's ``done.json`` recorded (entries made before they were
+    recorded: the registered count's)."""
+    try:
+        rec = json.loads(done.read_text())
+    except (OSError, ValueError):
+        return []
+    if isinstance(rec.get("warnings"), list):
+        return [str(w) for w in rec["warnings"]]
+    images, nreg = rec.get("images"), rec.get("registered")
+    if isinstance(images, list) and isinstance(nreg, int) and nreg < len(images):
+        return [f"SfM registered {nreg} of {len(images)} photos; the others are skipped"]
+    return []
 
 
 def _pair_count(names, in_order: bool) -> int:
