@@ -155,9 +155,9 @@ def test_lund_points_most_takes_the_larger_set_and_keeps_two_view_tracks(tmp_pat
     np.testing.assert_array_equal(most.point_tracks[1], larger.point_tracks[1])
     assert any(f"the {len(larger.points):,} " in w and "more than" in w for w in most.warnings)
     # and the other way round: more triangulated points than SfM ones
-    import tsplus_wgpu.data.loader as loader
+    import tsplus_wgpu.data.posed_points as posed_points
     many = np.tile(tri.points, (len(sfm.points) // len(tri.points) + 1, 1))
-    monkeypatch.setattr(loader, "_triangulated", lambda *a, **k: (many, np.zeros_like(many), None))
+    monkeypatch.setattr(posed_points, "triangulated", lambda *a, **k: (many, np.zeros_like(many), None))
     other = load_scene(d, downscale=8, frames=frames, points="most", cache_dir=tmp_path)
     assert other.points_source == "triangulated" and other.point_tracks is None
     np.testing.assert_array_equal(other.points, many)

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import hashlib
 import re
 from collections import Counter
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -13,8 +13,9 @@ import numpy as np
 from .errors import SceneError
 from .images import list_images
 from .plausible import check_train_size
+from .posed_points import initial_points, most_points
 from .scene import Scene, downscaled_size, load_frames, make_split, select_frames
-from .tracks import remap, subset
+from .tracks import subset
 
 FORMATS = ("colmap", "transforms", "nerf-synthetic", "llff", "photos", "video", "procedural")
 
@@ -169,41 +170,26 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
     train_set, test_set = set(train_all), set(test_all)
     train_idx = [j for j, o in enumerate(orig) if o in train_set]
     test_idx = [j for j, o in enumerate(orig) if o in test_set]
-    names = [chosen[k].name for k in kept]
-    models = dict(Counter(chosen[k].model for k in kept))
+    names, models = [chosen[k].name for k in kept], dict(Counter(chosen[k].model for k in kept))
+    left_out = []       # training views whose pose disagrees with their matches (:mod:`.posecheck`)
+    full = partial(_full_size_specs, fmt, root, images, [chosen[k] for k in kept], image_dir)   # when triangulating
     if points == "none":
         pts, cols, tracks, source = None, None, None, "none"
     elif pts is None or points in ("triangulate", "frusta"):
-        full = _full_size_specs(fmt, root, images, [chosen[k] for k in kept], image_dir)
-        pts, cols, source, tracks = _initial_points(points, cameras, imgs, full, bg, train_idx, bounds, cache_dir,
-                                                    progress, seed, warnings)
+        pts, cols, source, tracks = initial_points(points, cameras, imgs, full(), bg, train_idx, bounds, cache_dir,
+                                                   progress, seed, warnings, left_out)
     else:
         from .colmap import colmap_tracks  # noqa: PLC0415
         tracks, source = colmap_tracks(rec, names), "sfm"
         if points == "most":
-            full = _full_size_specs(fmt, root, images, [chosen[k] for k in kept], image_dir)
-            pts, cols, tracks, source = _most_points((pts, cols, tracks), full, bg, train_idx, cache_dir, progress,
-                                                     warnings)
+            pts, cols, tracks, source = most_points((pts, cols, tracks), full(), bg, train_idx, cache_dir, progress,
+                                                    warnings, left_out)
+    train_idx = [j for j in train_idx if j not in left_out]
     pts, cols, tracks = _subsample(pts, cols, tracks, max_points, seed)
     return Scene(format=fmt, cameras=cameras, images=imgs, image_names=names, points=pts, point_colors=cols,
                  point_tracks=tracks, points_source=source, train_indices=train_idx, test_indices=test_idx,
                  warnings=warnings, root=str(root), background=bg, skipped=skipped, camera_models=models,
                  split_rule=rule, image_dir=image_dir and str(image_dir), image_dir_reason=why, downscale=total)
-
-
-def _most_points(sfm, specs, background, train_idx, cache_dir, progress, warnings):
-    """``points="most"``: ``(points, colours, tracks, source)`` of the SfM points ``sfm``
-    (``(points, colours, tracks)``) or of :func:`_triangulated`'s, whichever are more; a
-    warning says which."""
-    got = _triangulated(specs, background, train_idx, cache_dir, progress, warnings, "the SfM points kept")
-    if got is None:
-        return (*sfm, "sfm")
-    n_sfm, n_tri = len(sfm[0]), len(got[0])
-    if n_tri > n_sfm:
-        warnings.append(f"initial points: the {n_tri:,} triangulated ones, more than the {n_sfm:,} SfM points")
-        return (*got, "triangulated")
-    warnings.append(f"initial points: the {n_sfm:,} SfM points, more than the {n_tri:,} triangulated ones")
-    return (*sfm, "sfm")
 
 
 def _subsample(pts, cols, tracks, max_points, seed):
@@ -386,77 +372,6 @@ def _full_size_specs(fmt, root, images, specs, image_dir):
     if full_dir == image_dir:
         return specs
     return [replace(f, path=full_dir / f.name) if (full_dir / f.name).is_file() else f for f in specs]
-
-
-def _triangulation_key(specs, background) -> str:
-    """Cache key of a triangulation: the image files (names and bytes, :func:`~.sfm.file_digest`),
-    their cameras and lens distortion, the background, and the loader's version of the recipe."""
-    from .sfm import RECIPE, file_digest  # noqa: PLC0415
-    h = hashlib.sha1(f"tsplus-triangulation-{RECIPE}|".encode())
-    for f in specs:
-        try:
-            h.update(f"{f.name}|{Path(f.path).name}|{file_digest(f.path)}|".encode())
-        except OSError:
-            h.update(f"{f.name}|missing|".encode())
-        c = f.camera
-        h.update(np.round(np.array([c.width, c.height, c.fx, c.fy, c.cx, c.cy], np.float64), 6).tobytes())
-        h.update(np.round(c.world_to_camera, 9).tobytes())
-        und = f.undistort
-        if und is not None:
-            coeffs = getattr(und, "coeffs", None)
-            cam = getattr(und, "camera", None)
-            h.update(repr((None if coeffs is None else np.asarray(coeffs).tolist(),
-                           None if cam is None else [cam.model_name, list(map(float, cam.params))])).encode())
-    h.update(repr(tuple(background)).encode())
-    return h.hexdigest()
-
-
-def _initial_points(points, cameras, imgs, specs, background, train_idx, bounds, cache_dir, progress, seed,
-                    warnings):
-    """Initial points without SfM ones (or when asked): triangulated with pycolmap from the
-    posed training images at their full size (:func:`_triangulated`), else made from the camera
-    frusta. ``specs`` are the loaded frames at full size.
-    Returns ``(points, colours, source, track table or None)`` (:mod:`.tracks`; view ids index
-    ``cameras``; None for frusta points)."""
-    from .frusta import frusta_points  # noqa: PLC0415
-    if points != "frusta":
-        got = _triangulated(specs, background, train_idx, cache_dir, progress, warnings)
-        if got is not None:
-            return got[0], got[1], "triangulated", got[2]
-    pts, cols = frusta_points(cameras, imgs, bounds=bounds, seed=seed)
-    if points == "frusta":
-        warnings.append("initial points made from the camera frusta (as asked)")
-    return pts, cols, "frusta", None
-
-
-def _triangulated(specs, background, train_idx, cache_dir, progress, warnings,
-                  fallback="initial points made from the camera frusta instead"):
-    """``(points, colours, track table or None)`` triangulated with pycolmap from the posed
-    training images (all images when fewer than 2 are for training) at their full size, cached
-    (so every downscale reuses them); None, with the warning ``"<why>: <fallback>"``, when that
-    fails or there are not 2 images. ``specs`` are the loaded frames at full size; the track
-    table's view ids index them."""
-    from .scene import full_size_frame  # noqa: PLC0415
-    from .sfm import cache_root, triangulate_frames  # noqa: PLC0415
-    use = train_idx if len(train_idx) >= 2 else list(range(len(specs)))
-    if len(use) < 2:
-        return None
-    croot, note = cache_root(None, cache_dir)
-    if note:
-        warnings.append(note)
-    sub = [specs[i] for i in use]
-    try:
-        pts, cols, info = triangulate_frames(lambda i: full_size_frame(sub[i], background), [f.name for f in sub],
-                                             _triangulation_key(sub, background), croot, progress=progress,
-                                             source=Path(sub[0].path).parent)
-    except RuntimeError as exc:
-        warnings.append(f"{exc}: {fallback}")
-        return None
-    warnings.append(f"initial points triangulated with pycolmap from {len(use)} posed images at full size "
-                    f"(mean reprojection error {info['mean_reprojection_error']:.2f} px"
-                    + (", cached" if "cached" in info else "") + ")")
-    tracks = info.get("tracks")
-    return pts, cols, None if tracks is None else remap(tracks, np.asarray(use, np.int64))
 
 
 def frame_sizes(path, images=None, progress=False) -> list:

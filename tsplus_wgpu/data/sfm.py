@@ -2,8 +2,9 @@
 
 * the photos' SfM (:mod:`.photos`) uses its features and matching (:func:`_extract_and_match`)
   and its cache (:func:`cache_root`), keyed by the photos' bytes (:func:`_fingerprint`).
-* :func:`triangulate_known_poses`: features and matches as above, then pycolmap's
-  point triangulator with the given cameras held fixed.
+* :func:`triangulate_known_poses`: features and matches as above, photos whose given pose
+  disagrees with their matches left out (:mod:`.posecheck`), then pycolmap's point triangulator
+  with the given cameras held fixed.
 
 pycolmap runs on one thread (:func:`sfm_threads`), so both give the same result on every run.
 The fallback without SfM points, points in the cameras' frusta, is :mod:`.frusta`.
@@ -26,6 +27,7 @@ from .errors import SceneError
 from .guided import add_guided_matches
 from .images import write_image
 from .long_calls import Stopped, _Progress, import_pycolmap  # noqa: F401  (Stopped: re-exported)
+from .posecheck import left_out, pose_errors
 from .tracks import check as check_tracks
 from .tracks import of_pycolmap_points as tracks_of_points
 
@@ -211,14 +213,14 @@ def _posed_key(cameras, images, names):
     return h.hexdigest()[:16]
 
 
-def _posed_reconstruction(pycolmap, db, cameras, safe):
-    """A pycolmap Reconstruction of the images in the database ``db`` (file names ``safe``)
-    with the known cameras and poses fixed and their keypoints, no points yet."""
+def _posed_reconstruction(pycolmap, db, cameras, safe, skip=()):
+    """A pycolmap Reconstruction of the images in the database ``db`` (file names ``safe``, but
+    those in ``skip``) with the known cameras and poses fixed and their keypoints, no points yet."""
     rec = pycolmap.Reconstruction()
     with pycolmap.Database.open(db) as database:
         db_images = {im.name: im for im in database.read_all_images()}
         for i, s in enumerate(safe):
-            if s not in db_images:
+            if s not in db_images or s in skip:
                 continue
             dbim = db_images[s]
             cam = cameras[i]
@@ -271,7 +273,10 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
         source: the images' folder, recorded for ``tsplus cache``.
 
     Returns / Raises: as :func:`triangulate_known_poses`; ``info["tracks"]`` is the points' track
-    table (:mod:`.tracks`) whose ids index ``names``.
+    table (:mod:`.tracks`) whose ids index ``names``; ``info["pose_error"]`` each image's error
+    against its pose (:func:`~.posecheck.pose_errors`, NaN where not judged) and
+    ``info["pose_off"]`` the indices of those left out (:func:`~.posecheck.left_out`: no match,
+    point or track of theirs is used).
     """
     pycolmap = _pycolmap()
     sfm_threads()   # a bad TSPLUS_SFM_THREADS is an error before any work, never a fallback
@@ -282,12 +287,15 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
     if result.is_file():
         try:
             with np.load(result) as z:
-                if "track_offsets" in z.files and "track_frames" in z.files:  # else stale (older version)
+                if {"track_offsets", "track_frames", "pose_error"} <= set(z.files):   # else stale (older version)
                     tracks = (z["track_offsets"].astype(np.int64), z["track_frames"].astype(np.int32))
                     check_tracks(tracks, len(z["xyz"]), len(names))
+                    pose_error, pose_off = z["pose_error"].astype(np.float64), z["pose_off"].astype(np.int64)
+                    if len(pose_error) != len(names) or np.any((pose_off < 0) | (pose_off >= len(names))):
+                        raise ValueError("pose check of other images")
                     mark_used(work)
                     return z["xyz"], z["rgb"], {"cached": str(result), "mean_reprojection_error": float(z["err"]),
-                                                "tracks": tracks}
+                                                "tracks": tracks, "pose_error": pose_error, "pose_off": pose_off}
         except Exception:  # a damaged cache entry: compute again
             pass
     if work.exists():
@@ -322,19 +330,26 @@ def _triangulated_points(pycolmap, work, load_one, names, progress, max_image_si
         del img
     if len(safe) < 2:
         raise RuntimeError(f"only {len(safe)} image(s) could be read for triangulation")
-    rec = _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaustive_max)
+    rec, errors, off = _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaustive_max)
+    frame = dict(zip(safe, frame_of))
+    pose_error = np.full(len(names), np.nan)
+    for s, (e, _) in errors.items():
+        pose_error[frame[s]] = e
+    pose_off = np.array([frame[s] for s in off], np.int64)
     pts = list(rec.points3D.values())
     if len(pts) < 50:
         raise RuntimeError(f"pycolmap triangulated only {len(pts)} points")
     xyz = np.array([p.xyz for p in pts], np.float64)
     rgb = np.array([p.color for p in pts], np.float64) / 255.0
     err = float(rec.compute_mean_reprojection_error())
-    tracks = tracks_of_points(rec, pts, dict(zip(safe, frame_of)))
+    tracks = tracks_of_points(rec, pts, frame)
     tmp = work / f"points.tmp{os.getpid()}.npz"
-    np.savez(tmp, xyz=xyz, rgb=rgb, err=err, track_offsets=tracks[0], track_frames=tracks[1])
+    np.savez(tmp, xyz=xyz, rgb=rgb, err=err, track_offsets=tracks[0], track_frames=tracks[1], pose_error=pose_error,
+             pose_off=pose_off)
     os.replace(tmp, result)
     trim(work, "tri")
-    return xyz, rgb, {"mean_reprojection_error": err, "reconstruction": rec, "work": str(work), "tracks": tracks}
+    return xyz, rgb, {"mean_reprojection_error": err, "reconstruction": rec, "work": str(work), "tracks": tracks,
+                      "pose_error": pose_error, "pose_off": pose_off}
 
 
 def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaustive_max):
@@ -349,8 +364,13 @@ def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaus
                            pairs=pairs, max_image_size=max_image_size, progress=prog,
                            small_images=max(cameras[0].width, cameras[0].height) < 1200)
         rec = _posed_reconstruction(pycolmap, db, cameras, safe)
+        errors = pose_errors(pycolmap, db, rec)      # each photo's matches against its pose
+        off = left_out(errors)
+        if off:     # a wrong pose: out of the reconstruction, so none of its matches makes a point
+            rec = _posed_reconstruction(pycolmap, db, cameras, safe, skip=set(off))
         prog.stage("matching along the known epipolar lines")
-        add_guided_matches(pycolmap, db, rec, _neighbour_pairs(cameras, safe, k=GUIDED_NEIGHBOURS),
+        add_guided_matches(pycolmap, db, rec, [p for p in _neighbour_pairs(cameras, safe, k=GUIDED_NEIGHBOURS)
+                                               if not set(p) & set(off)],
                            on_pair=lambda k, n: prog.note(f"matching along the known epipolar lines: pair {k}/{n}"))
         prog.stage("triangulating")
         out = work / "sparse"
@@ -366,7 +386,7 @@ def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaus
         raise RuntimeError(f"pycolmap triangulation failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}") from None
     finally:
         prog.close()
-    return rec
+    return rec, errors, off
 
 
 def reprojection_errors(rec, cameras: list, names: list | None = None) -> np.ndarray:

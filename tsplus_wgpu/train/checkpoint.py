@@ -172,7 +172,8 @@ def data_fingerprint(scene, scene_arg, downscale=1, images=None):
     ``procedural:<size>``), ``format``, ``downscale``, ``images`` (the image folder asked for),
     ``image_dir`` (the image folder read), ``views`` (the number of images), ``image_names`` / ``image_sizes`` / ``pixels``
     (SHA-256 digests, 16 hex digits: names, W x H of each, a strided sample of every image's
-    pixels) and ``points`` (the number of initial points)."""
+    pixels), ``train`` (the training views' digest: a photo the loader left out changes it) and
+    ``points`` (the number of initial points)."""
     names = hashlib.sha256("\n".join(map(str, scene.image_names)).encode()).hexdigest()[:16]
     sizes = hashlib.sha256(";".join(f"{c.width}x{c.height}" for c in scene.cameras).encode()).hexdigest()[:16]
     pix = hashlib.sha256()
@@ -181,16 +182,17 @@ def data_fingerprint(scene, scene_arg, downscale=1, images=None):
         step = max(1, int(np.sqrt(img.shape[0] * img.shape[1] / 4096)))    # about 4096 pixels per image
         pix.update(np.ascontiguousarray(img[::step, ::step], np.float32).tobytes())
     image_dir = getattr(scene, "image_dir", None)
+    train = hashlib.sha256(",".join(map(str, scene.train_indices)).encode()).hexdigest()[:16]
     return dict(scene=scene_id(scene_arg), format=scene.format, downscale=downscale, images=images,
                 image_dir=Path(image_dir).name if image_dir else None, views=len(scene.images), image_names=names, image_sizes=sizes, pixels=pix.hexdigest()[:16],
-                points=0 if scene.points is None else int(len(scene.points)))
+                train=train, points=0 if scene.points is None else int(len(scene.points)))
 
 
 #: fingerprint key -> how a difference is named
 _WHAT = dict(scene="scene", format="scene format", downscale="--downscale", images="--images",
              image_dir="image folder",
              views="number of images", image_names="image names", image_sizes="image sizes",
-             pixels="image content", points="number of initial points")
+             pixels="image content", train="training views", points="number of initial points")
 
 
 def check_fingerprint(path, saved, current, keys=None):
@@ -202,7 +204,7 @@ def check_fingerprint(path, saved, current, keys=None):
                 f"this is the same data")
     keys = [k for k in (keys or _WHAT) if k in saved and k in current]
     diff = [f"{_WHAT[k]} {saved[k]!r} (checkpoint) vs {current[k]!r}" if k not in ("image_names", "image_sizes",
-            "pixels") else f"{_WHAT[k]} differ" for k in keys if saved[k] != current[k]]
+            "pixels", "train") else f"{_WHAT[k]} differ" for k in keys if saved[k] != current[k]]
     if diff:
         raise UserError(f"--resume: {path} was trained on other data: {'; '.join(diff)}; resume with the run's own "
                         f"scene and options, or train into a new --out folder")

@@ -1,0 +1,109 @@
+"""Initial points of a posed scene: triangulated from its training photos with pycolmap
+(:mod:`.sfm`, cached at full size), its SfM points, whichever are more, or points in the camera
+frusta (:mod:`.frusta`), for :func:`~.loader.load_scene`.
+
+The triangulation also checks every training photo's pose against its own matches
+(:mod:`.posecheck`); the photos whose pose disagrees are named in a warning and added to
+``left_out``, which the loader takes out of the training views.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+from .tracks import remap
+
+
+def triangulation_key(specs, background) -> str:
+    """Cache key of a triangulation: the image files (names and bytes, :func:`~.sfm.file_digest`),
+    their cameras and lens distortion, the background, and the loader's version of the recipe."""
+    from .sfm import RECIPE, file_digest  # noqa: PLC0415
+    h = hashlib.sha1(f"tsplus-triangulation-{RECIPE}|".encode())
+    for f in specs:
+        try:
+            h.update(f"{f.name}|{Path(f.path).name}|{file_digest(f.path)}|".encode())
+        except OSError:
+            h.update(f"{f.name}|missing|".encode())
+        c = f.camera
+        h.update(np.round(np.array([c.width, c.height, c.fx, c.fy, c.cx, c.cy], np.float64), 6).tobytes())
+        h.update(np.round(c.world_to_camera, 9).tobytes())
+        und = f.undistort
+        if und is not None:
+            coeffs = getattr(und, "coeffs", None)
+            cam = getattr(und, "camera", None)
+            h.update(repr((None if coeffs is None else np.asarray(coeffs).tolist(),
+                           None if cam is None else [cam.model_name, list(map(float, cam.params))])).encode())
+    h.update(repr(tuple(background)).encode())
+    return h.hexdigest()
+
+
+def initial_points(points, cameras, imgs, specs, background, train_idx, bounds, cache_dir, progress, seed,
+                   warnings, left_out):
+    """Initial points without SfM ones (or when asked): triangulated with pycolmap from the
+    posed training images at their full size (:func:`triangulated`), else made from the camera
+    frusta. ``specs`` are the loaded frames at full size.
+    Returns ``(points, colours, source, track table or None)`` (:mod:`.tracks`; view ids index
+    ``cameras``; None for frusta points)."""
+    from .frusta import frusta_points  # noqa: PLC0415
+    if points != "frusta":
+        got = triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out)
+        if got is not None:
+            return got[0], got[1], "triangulated", got[2]
+    pts, cols = frusta_points(cameras, imgs, bounds=bounds, seed=seed)
+    if points == "frusta":
+        warnings.append("initial points made from the camera frusta (as asked)")
+    return pts, cols, "frusta", None
+
+
+def triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out,
+                 fallback="initial points made from the camera frusta instead"):
+    """``(points, colours, track table or None)`` triangulated with pycolmap from the posed
+    training images (all images when fewer than 2 are for training) at their full size, cached
+    (so every downscale reuses them); None, with the warning ``"<why>: <fallback>"``, when that
+    fails or there are not 2 images. ``specs`` are the loaded frames at full size; the track
+    table's view ids index them."""
+    from .scene import full_size_frame  # noqa: PLC0415
+    from .sfm import cache_root, triangulate_frames  # noqa: PLC0415
+    use = train_idx if len(train_idx) >= 2 else list(range(len(specs)))
+    if len(use) < 2:
+        return None
+    croot, note = cache_root(None, cache_dir)
+    if note:
+        warnings.append(note)
+    sub = [specs[i] for i in use]
+    try:
+        pts, cols, info = triangulate_frames(lambda i: full_size_frame(sub[i], background), [f.name for f in sub],
+                                             triangulation_key(sub, background), croot, progress=progress,
+                                             source=Path(sub[0].path).parent)
+    except RuntimeError as exc:
+        warnings.append(f"{exc}: {fallback}")
+        return None
+    warnings.append(f"initial points triangulated with pycolmap from {len(use)} posed images at full size "
+                    f"(mean reprojection error {info['mean_reprojection_error']:.2f} px"
+                    + (", cached" if "cached" in info else "") + ")")
+    for k in map(int, info.get("pose_off", ())):      # photos whose pose disagrees with their matches
+        err = info["pose_error"]
+        warnings.append(f"{sub[k].name}: its pose disagrees with its matches to the other photos (epipolar error "
+                        f"{err[k] * 100:.2f} % of the image diagonal, the median photo's {np.nanmedian(err) * 100:.2f} "
+                        "%): left out of training and of the initial points; correct or remove it in the camera model")
+        left_out.append(use[k])
+    tracks = info.get("tracks")
+    return pts, cols, None if tracks is None else remap(tracks, np.asarray(use, np.int64))
+
+
+def most_points(sfm, specs, background, train_idx, cache_dir, progress, warnings, left_out):
+    """``points="most"``: ``(points, colours, tracks, source)`` of the SfM points ``sfm``
+    (``(points, colours, tracks)``) or of :func:`triangulated`'s, whichever are more; a
+    warning says which."""
+    got = triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out, "the SfM points kept")
+    if got is None:
+        return (*sfm, "sfm")
+    n_sfm, n_tri = len(sfm[0]), len(got[0])
+    if n_tri > n_sfm:
+        warnings.append(f"initial points: the {n_tri:,} triangulated ones, more than the {n_sfm:,} SfM points")
+        return (*got, "triangulated")
+    warnings.append(f"initial points: the {n_sfm:,} SfM points, more than the {n_tri:,} triangulated ones")
+    return (*sfm, "sfm")
