@@ -1,5 +1,5 @@
 """A photo whose given pose disagrees with its own matches (data/posecheck.py) is found by the
-triangulation of posed photos and left out of training and of the initial points; photos whose
+triangulation of posed photos and left out of training and of the triangulation; photos whose
 poses are right are never left out."""
 
 import numpy as np

@@ -88,7 +88,7 @@ def triangulated(specs, background, train_idx, cache_dir, progress, warnings, le
         err = info["pose_error"]
         warnings.append(f"{sub[k].name}: its pose disagrees with its matches to the other photos (epipolar error "
                         f"{err[k] * 100:.2f} % of the image diagonal, the median photo's {np.nanmedian(err) * 100:.2f} "
-                        "%): left out of training and of the initial points; correct or remove it in the camera model")
+                        "%): left out of training and of the triangulation; correct or remove it in the camera model")
         left_out.append(use[k])
     tracks = info.get("tracks")
     return pts, cols, None if tracks is None else remap(tracks, np.asarray(use, np.int64))
