@@ -182,7 +182,7 @@ def data_fingerprint(scene, scene_arg, downscale=1, images=None):
         step = max(1, int(np.sqrt(img.shape[0] * img.shape[1] / 4096)))    # about 4096 pixels per image
         pix.update(np.ascontiguousarray(img[::step, ::step], np.float32).tobytes())
     image_dir = getattr(scene, "image_dir", None)
-    train = hashlib.sha256(",".join(map(str, scene.train_indices)).encode()).hexdigest()[:16]
+    train = hashlib.sha256(",".join(map(str, getattr(scene, "train_indices", ()))).encode()).hexdigest()[:16]
     return dict(scene=scene_id(scene_arg), format=scene.format, downscale=downscale, images=images,
                 image_dir=Path(image_dir).name if image_dir else None, views=len(scene.images), image_names=names, image_sizes=sizes, pixels=pix.hexdigest()[:16],
                 train=train, points=0 if scene.points is None else int(len(scene.points)))
