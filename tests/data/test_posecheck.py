@@ -2,6 +2,8 @@
 triangulation of posed photos and left out of training and of the triangulation; photos whose
 poses are right are never left out."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -36,6 +38,73 @@ def test_sampson_distance_is_zero_for_true_matches_and_a_pixel_for_a_pixel_off()
     np.testing.assert_allclose(P.sampson(F, x1, x2 + 0.5 * normal), d / 2, rtol=2e-3)
     # along the line: no distance
     assert P.sampson(F, x1, x2 + 3 * normal[:, ::-1] * [1, -1]).max() < 1e-6
+
+
+class _Db:
+    """A stand-in for pycolmap's database and module: three posed images, every pair's matches."""
+
+    def __init__(self, keys, pairs):
+        self.keys, self.pairs = keys, pairs
+
+    # pycolmap's module
+    class Database:
+        @staticmethod
+        def open(path):
+            return path
+
+    @staticmethod
+    def pair_id_to_image_pair(pid):
+        return pid
+
+    # the database
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def read_two_view_geometries(self):
+        return list(self.pairs), [type("G", (), {"inlier_matches": m})() for m in self.pairs.values()]
+
+    def read_keypoints(self, i):
+        return self.keys[i]
+
+
+def _posed(cams):
+    """A stand-in for a pycolmap Reconstruction of the cameras ``cams`` (ids from 1)."""
+    ns = SimpleNamespace
+    return ns(cameras={i + 1: ns(calibration_matrix=(lambda c=c: _k(c)), width=c.width, height=c.height)
+                       for i, c in enumerate(cams)},
+              images={i + 1: ns(name=f"{i}.png", camera_id=i + 1,
+                                cam_from_world=ns(matrix=(lambda c=c: c.world_to_camera[:3])))
+                      for i, c in enumerate(cams)})
+
+
+def test_pose_errors_judge_each_photo_by_its_pairs(monkeypatch):
+    """pose_errors on a stand-in database whose matches are the true projections: a photo whose
+    pose was turned by 6 degrees gets many times the error of the others, and a pair of cameras
+    at one centre (no epipolar geometry) is not counted."""
+    sc = load_procedural("tiny", seed=0)
+    cams = sc.cameras[:4]
+    uv = [c.project(sc.points) for c in cams]
+    seen = np.all([z > 0 for _, z in uv], axis=0)
+    keys = {i + 1: uv[i][0][seen] for i in range(4)}
+    n = int(seen.sum())
+    m = np.stack([np.arange(n), np.arange(n)], 1)
+    db = _Db(keys, {(a, b): m for a in range(1, 5) for b in range(a + 1, 5)})
+    monkeypatch.setattr(_Db.Database, "open", staticmethod(lambda path: db))
+    exact = P.pose_errors(_Db, "db", _posed(cams))
+    assert n > 50 and all(e < 1e-9 and k == 3 for e, k in exact.values())
+    err = P.pose_errors(_Db, "db", _posed(cams[:3] + [_turned(cams[3], 6.0)]))
+    # each other photo has two exact pairs of three: its weighted median stays exact
+    assert err["3.png"][0] > P.FLOOR and max(err[f"{i}.png"][0] for i in range(3)) < 1e-9
+    assert P.left_out(err) == ["3.png"]
+    # a second camera at the first one's centre: that pair is not judged, the others are
+    twin = _posed([cams[0], Camera(cams[1].width, cams[1].height, cams[1].fx, cams[1].fy, cams[1].cx, cams[1].cy,
+                                   cams[0].world_to_camera)] + cams[2:])
+    got = P.pose_errors(_Db, "db", twin)
+    assert got["0.png"][1] == 2 and got["1.png"][1] == 2 and got["2.png"][1] == 3
+    assert P.weighted_median([(0.0, 5), (1.0, 4)]) == 0.0 and P.weighted_median([(0.0, 4), (1.0, 5)]) == 1.0
 
 
 def test_only_the_odd_photo_out_is_left_out():

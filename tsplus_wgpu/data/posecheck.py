@@ -79,7 +79,11 @@ def pose_errors(pycolmap, db_path, rec) -> dict:
                 if i not in keys:
                     keys[i] = np.asarray(db.read_keypoints(i))[:, :2]
             (_, k1, t1, d1), (_, k2, t2, d2) = posed[i1], posed[i2]
-            med = float(np.median(sampson(fundamental(k1, t1, k2, t2), keys[i1][m[:, 0]], keys[i2][m[:, 1]])))
+            c1, c2 = -t1[:, :3].T @ t1[:, 3], -t2[:, :3].T @ t2[:, 3]
+            if np.linalg.norm(c1 - c2) <= 1e-9 * max(np.linalg.norm(c1), np.linalg.norm(c2), 1e-300):
+                continue                    # one centre for both: no epipolar line to hold matches to
+            f = fundamental(k1, t1, k2, t2)
+            med = float(np.median(sampson(f, keys[i1][m[:, 0]], keys[i2][m[:, 1]])))
             per[i1].append((med / d1, len(m)))
             per[i2].append((med / d2, len(m)))
     return {posed[i][0]: (weighted_median(v) if len(v) >= MIN_PAIRS else float("nan"), len(v))
