@@ -61,10 +61,11 @@ def _posed(rec):
 
 def pose_errors(pycolmap, db_path, rec) -> dict:
     """``{name: (error, pairs)}`` for the photos of the posed reconstruction ``rec`` (cameras at
-    the database's keypoint scale): the median over its verified pairs of at least
-    :data:`MIN_INLIERS` matches of their median Sampson distance from the poses' epipolar
-    constraint, as a fraction of the image diagonal (NaN with fewer than :data:`MIN_PAIRS` pairs),
-    and how many pairs that was."""
+    the database's keypoint scale): over its verified pairs of at least :data:`MIN_INLIERS`
+    matches (pairs whose cameras share a centre left aside), the median of their median Sampson
+    distance from the poses' epipolar constraint, each pair weighted by its matches
+    (:func:`weighted_median`), as a fraction of the image diagonal (NaN with fewer than
+    :data:`MIN_PAIRS` pairs), and how many pairs that was."""
     posed = _posed(rec)
     per = {iid: [] for iid in posed}
     with pycolmap.Database.open(db_path) as db:
