@@ -27,14 +27,6 @@ PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
 __all__ = ["MODEL_FILES", "PINHOLE_MODELS", "colmap_frames", "colmap_tracks", "find_model_dir", "read_model"]
 
 
-def _pycolmap():
-    try:
-        pycolmap = import_pycolmap()
-    except ImportError:  # pragma: no cover
-        raise SceneError("pycolmap is missing: install it with `pip install pycolmap`") from None
-    return pycolmap
-
-
 def find_model_dir(root: Path):
     """The folder holding ``cameras/images/points3D`` (.bin or .txt): ``sparse/0``, ``sparse`` or ``root``."""
     for cand in (root / "sparse" / "0", root / "sparse", root):
@@ -48,7 +40,7 @@ def read_model(model_dir: Path, warnings=None):
     """Read a COLMAP model with pycolmap after checking its files (:mod:`.colmap_check`),
     turning every failure into a one-line SceneError; points with non-finite coordinates in
     ``points3D.txt`` are left out with a warning."""
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     model_dir = Path(model_dir)
     _, bad_lines = check_model(model_dir)
     src, tmp = model_dir, None

@@ -48,8 +48,13 @@ def import_pycolmap():
     """``pycolmap``, imported. Its logging library installs, at the first import, a handler that
     answers SIGTERM with a crash report of the C++ stack, over whatever handler Python code had
     installed: that one is put back (none was: the library's stays). Every import of pycolmap in
-    the package goes through here (tests/test_architecture.py)."""
-    import pycolmap  # noqa: PLC0415
+    the package goes through here (tests/test_architecture.py); without pycolmap installed it is
+    a one-line :class:`~.errors.SceneError`."""
+    try:
+        import pycolmap  # noqa: PLC0415
+    except ImportError:  # pragma: no cover
+        from .errors import SceneError  # noqa: PLC0415
+        raise SceneError("pycolmap is missing: install it with `pip install pycolmap`") from None
     if threading.current_thread() is threading.main_thread():
         for sig in STOP_SIGNALS:
             handler = signal.getsignal(sig)

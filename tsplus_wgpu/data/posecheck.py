@@ -49,13 +49,14 @@ def sampson(F, x1, x2) -> np.ndarray:
 
 
 def _posed(rec):
-    """``{image_id: (name, K, 3x4 world-to-camera, diagonal px)}`` of a pycolmap Reconstruction."""
+    """``{image_id: (name, K, 3x4 world-to-camera, diagonal px, centre)}`` of a pycolmap Reconstruction."""
     out = {}
     for iid, im in rec.images.items():
         pose = im.cam_from_world() if callable(im.cam_from_world) else im.cam_from_world
         cam = rec.cameras[im.camera_id]
-        out[iid] = (im.name, np.asarray(cam.calibration_matrix(), np.float64), np.asarray(pose.matrix(), np.float64),
-                    float(np.hypot(cam.width, cam.height)))
+        t = np.asarray(pose.matrix(), np.float64)
+        out[iid] = (im.name, np.asarray(cam.calibration_matrix(), np.float64), t, float(np.hypot(cam.width, cam.height)),
+                    -t[:, :3].T @ t[:, 3])
     return out
 
 
@@ -79,8 +80,7 @@ def pose_errors(pycolmap, db_path, rec) -> dict:
             for i in (i1, i2):
                 if i not in keys:
                     keys[i] = np.asarray(db.read_keypoints(i))[:, :2]
-            (_, k1, t1, d1), (_, k2, t2, d2) = posed[i1], posed[i2]
-            c1, c2 = -t1[:, :3].T @ t1[:, 3], -t2[:, :3].T @ t2[:, 3]
+            (_, k1, t1, d1, c1), (_, k2, t2, d2, c2) = posed[i1], posed[i2]
             if np.linalg.norm(c1 - c2) <= 1e-9 * max(np.linalg.norm(c1), np.linalg.norm(c2), 1e-300):
                 continue                    # one centre for both: no epipolar line to hold matches to
             f = fundamental(k1, t1, k2, t2)

@@ -79,10 +79,7 @@ def sfm_threads() -> int:
 
 
 def _pycolmap():
-    try:
-        pycolmap = import_pycolmap()
-    except ImportError:  # pragma: no cover
-        raise SceneError("pycolmap is missing: install it with `pip install pycolmap`") from None
+    pycolmap = import_pycolmap()
     try:  # COLMAP's own INFO log is far too chatty for a command line tool
         if os.environ.get("TSPLUS_COLMAP_LOG") is None:
             pycolmap.logging.minloglevel = 3
