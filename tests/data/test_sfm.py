@@ -291,3 +291,70 @@ def test_the_sfm_bar_moves_during_a_long_silent_call():
         assert steps.bar.n == 0
     assert steps.bar.n == 1
     steps.close()
+
+
+def test_the_mappers_are_tried_in_turn_until_one_registers_every_photo(monkeypatch):
+    """With an EXIF focal length: the global mapper holding it, then refining it, then the
+    incremental mapper; without: the last two. The first that registers every photo ends the
+    search; otherwise the one that registers the most wins, the earlier on a tie."""
+    from tsplus_wgpu.data import photos
+    from tsplus_wgpu.data.sfm import _Progress
+
+    class Rec:
+        def __init__(self, n, tag):
+            self.n, self.tag = n, tag
+
+        def num_reg_images(self):
+            return self.n
+
+    def run(exif, counts):
+        calls = []
+        monkeypatch.setattr(photos, "_exif_focal", lambda pycolmap, db: exif)
+
+        def fake_global(pycolmap, db, photo_dir, work, prog, count, hold):
+            calls.append("held" if hold else "global")
+            n = counts[calls[-1]]
+            return None if n is None else Rec(n, calls[-1])
+
+        def fake_incremental(pycolmap, db, photo_dir, work, prog):
+            calls.append("incremental")
+            return Rec(counts["incremental"], "incremental")
+
+        monkeypatch.setattr(photos, "_global_mapping", fake_global)
+        monkeypatch.setattr(photos, "_incremental_mapping", fake_incremental)
+        best = photos._mapping(None, None, None, None, _Progress(False, 1, ""), 10)
+        return calls, best.tag if best is not None else None
+
+    assert run(True, dict(held=10, **{"global": 10}, incremental=10)) == (["held"], "held")
+    assert run(False, dict(held=10, **{"global": 10}, incremental=10)) == (["global"], "global")
+    assert run(True, dict(held=8, **{"global": None}, incremental=10)) == (["held", "global", "incremental"], "incremental")
+    assert run(True, dict(held=8, **{"global": 9}, incremental=9)) == (["held", "global", "incremental"], "global")
+    assert run(True, dict(held=8, **{"global": 7}, incremental=8)) == (["held", "global", "incremental"], "held")
+    assert run(False, dict(held=0, **{"global": None}, incremental=0)) == (["global", "incremental"], None)
+
+
+@pytest.mark.slow
+def test_a_forward_walk_with_exif_is_posed_like_the_dataset(tmp_path, monkeypatch):
+    """Lund's 29 photos walking down a street, at 600x450 with the EXIF focal length a phone
+    writes: every photo registered, within 2 degrees (median per photo) of the dataset's poses.
+    The incremental mapper registers 2 of them, and the global mapper refining the focal
+    length gives up (docs/measurements.md, "A forward walk: the global mapper")."""
+    import os
+    from pathlib import Path
+    from tsplus_wgpu.bench.exif_copy import exif_copy
+    data = Path(os.environ.get("TSPLUS_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
+    if not (data / "lund").is_dir():
+        pytest.skip(f"shared data scene {data / 'lund'} not found (set TSPLUS_DATA)")
+    monkeypatch.delenv("TSPLUS_SFM_THREADS", raising=False)      # one thread: the same poses on every run
+    folder = tmp_path / "walk"      # EXIF 35 mm equivalent 34 mm: COLMAP's prior 589 px (the model's 583)
+    exif_copy(data / "lund" / "images", folder, 34, width=600)
+    sc = load_scene(folder, split="none", cache_dir=tmp_path / "cache")
+    ref = load_scene(data / "lund", downscale=8, split="none", points="none")
+    R = {n: c.R for n, c in zip(ref.image_names, ref.cameras)}
+    got = {n: c.R for n, c in zip(sc.image_names, sc.cameras) if n != "20.jpg"}   # the dataset's 20.jpg is wrong
+    per = [np.median([rotation_angle_deg((got[a] @ got[b].T) @ (R[a] @ R[b].T).T) for b in got if b != a])
+           for a in got]
+    print(f"forward walk: {len(sc.cameras)}/29 registered, focal {sc.cameras[0].fx:.1f} px, per-photo relative "
+          f"rotation error median {np.median(per):.2f} max {np.max(per):.2f} deg")
+    assert len(sc.cameras) == 29
+    assert np.median(per) < 2.0

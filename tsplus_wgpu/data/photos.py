@@ -1,7 +1,8 @@
 """Structure from motion for a folder of photos or a video's frames (pycolmap), with a progress bar.
 
 :func:`run_photos_sfm`: SIFT features, matching (every pair; the frames of a video, or more than
-:data:`ORDERED_PHOTOS_MIN` photos, in their order) and incremental mapping. The model is cached in
+:data:`ORDERED_PHOTOS_MIN` photos, in their order) and global mapping (incremental where that
+registers more; the photos' EXIF focal length held first). The model is cached in
 the user cache (:func:`~tsplus_wgpu.data.sfm.cache_root`) and reused while the photos have not
 changed. pycolmap runs on one thread, so it gives the same model on every run.
 """
@@ -187,7 +188,7 @@ def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, w
                        extract_units=len(names) * STEP_SECONDS["image"], groups=groups,
                        match_units=_pair_count(names, sequential or ordered) * STEP_SECONDS["pair"])
     n_pairs = _pair_count(names, sequential or ordered)
-    best = _mapping(pycolmap, db, photo_dir, work, prog)
+    best = _mapping(pycolmap, db, photo_dir, work, prog, len(names))
     nreg = best.num_reg_images() if best is not None else 0
     if ordered and nreg < ORDERED_MIN_SHARE * len(names):
         warnings.append(f"SfM of the photos in name order registered {nreg} of {len(names)}: every pair matched "
@@ -199,12 +200,72 @@ def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, w
         mopt.num_threads = sfm_threads()
         with prog.creep(rest * STEP_SECONDS["pair"]):
             pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)
-        shutil.rmtree(work / "sparse_all", ignore_errors=True)
-        best = _mapping(pycolmap, db, photo_dir, work, prog)
+        for old in ("sparse_all", "sparse_global", "sparse_global_held"):
+            shutil.rmtree(work / old, ignore_errors=True)
+        best = _mapping(pycolmap, db, photo_dir, work, prog, len(names))
     return best
 
 
-def _mapping(pycolmap, db, photo_dir, work, prog):
+def _mapping(pycolmap, db, photo_dir, work, prog, count: int):
+    """The reconstruction of the matched database ``db`` of ``count`` photos that registers the
+    most of them (None when there is none). Tried in turn until one registers every photo, the
+    first kept on a tie: COLMAP's global mapper with the focal length the photos' EXIF gives
+    held (only when every camera has one), the global mapper refining the focal length, the
+    incremental mapper (docs/measurements.md, "A forward walk: the global mapper")."""
+    tries = [True] if _exif_focal(pycolmap, db) else []
+    tries += [False, None]
+    best, got = None, -1
+    for k, hold in enumerate(tries):
+        if k:
+            prog.add(count * STEP_SECONDS["register"])
+        if hold is None:
+            rec = _incremental_mapping(pycolmap, db, photo_dir, work, prog)
+        else:
+            rec = _global_mapping(pycolmap, db, photo_dir, work, prog, count, hold)
+        n = rec.num_reg_images() if rec is not None else 0
+        if n > got:
+            best, got = rec, n
+        if got >= count:
+            break
+    return best
+
+
+def _exif_focal(pycolmap, db) -> bool:
+    """Whether every camera of ``db`` has its focal length from the photos' EXIF (COLMAP's prior)."""
+    base = pycolmap.Database.open(str(db))
+    try:
+        cams = base.read_all_cameras()
+    finally:
+        base.close()
+    return bool(cams) and all(c.has_prior_focal_length for c in cams)
+
+
+def _global_mapping(pycolmap, db, photo_dir, work, prog, count: int, hold: bool):
+    """pycolmap's global SfM (GLOMAP) of ``db``: the rotations of every photo averaged from the
+    pairs' relative poses, then the positions, then bundle adjustment over all photos at once,
+    where the incremental mapper grows the model photo by photo and a walk down a street drifts.
+    ``hold``: the focal length is not refined (a forward walk hardly constrains it, and refining
+    trades it for the poses); the distortion is (there is no prior for it, and a lens's
+    distortion held at zero costs the views it bends). Runs on a copy of ``db`` (it writes the pairs'
+    decomposed poses into it); returns the model that registers the most photos, or None (also
+    when the mapper gives up)."""
+    prog.stage("global mapping" + (" (EXIF focal length)" if hold else ""), 0)
+    tag = "_held" if hold else ""
+    copy = work / f"database_global{tag}.db"
+    shutil.copyfile(db, copy)
+    opts = pycolmap.GlobalPipelineOptions()
+    opts.num_threads = opts.mapper.num_threads = sfm_threads()
+    opts.random_seed = opts.mapper.random_seed = 0
+    opts.multiple_models = False
+    opts.mapper.bundle_adjustment.refine_focal_length = not hold
+    out = work / f"sparse_global{tag}"
+    out.mkdir(exist_ok=True)
+    with prog.creep(count * STEP_SECONDS["register"]):
+        recs = pycolmap.global_mapping(copy, photo_dir, out, options=opts)
+    return max(recs.values(), key=lambda r: r.num_reg_images()) if recs else None
+
+
+def _incremental_mapping(pycolmap, db, photo_dir, work, prog):
     """pycolmap's incremental mapping of the matched database ``db``: the reconstruction that
     registers the most images, or None."""
     prog.stage("incremental mapping", 0)

@@ -43,8 +43,10 @@ TRIANGULATION_MIN_ANGLE = 1.0
 #: (v3: pycolmap on one thread, deterministic; v4: matches guided by the known poses added;
 #: v5: guided over 12 nearest cameras instead of 6)
 RECIPE = "v5"
-#: the photo folder's SfM recipe (unchanged by v4, which only adds matches for posed images)
-SFM_RECIPE = "v3"
+#: the photo folder's SfM recipe (unchanged by v4, which only adds matches for posed images;
+#: v5: the global mapper first, the EXIF focal length held, :mod:`.photos`; v4 was an
+#: experiment's, reverted, so its cache entries must not be read as this recipe's)
+SFM_RECIPE = "v5"
 #: the frames of a video (:mod:`.video`) are matched in time order: each with the next this many,
 #: and with the frames 16, 32, ... 512 further on (COLMAP's sequential matching with its quadratic
 #: overlap: 2 ** k for k below this), instead of every pair: 100 frames give 1,133 pairs, not 4,950
