@@ -155,10 +155,14 @@ def test_tsplus_debug_shows_the_traceback_too(monkeypatch, capsys):
     assert "Traceback" in err and err.strip().endswith("tsplus: error: bad input")
 
 
-def test_a_bad_sfm_threads_variable_is_one_line_at_the_start(monkeypatch, tmp_path, capsys):
+def test_a_bad_sfm_variable_is_one_line_at_the_start(monkeypatch, tmp_path, capsys):
     monkeypatch.setenv("TSPLUS_SFM_THREADS", "many")
     assert main(["train", "procedural:tiny", "--out", str(tmp_path / "run")]) == 2
     assert "TSPLUS_SFM_THREADS='many'" in one_line(capsys.readouterr().err) and not (tmp_path / "run").exists()
+    monkeypatch.delenv("TSPLUS_SFM_THREADS")
+    monkeypatch.setenv("TSPLUS_SFM_FOCAL", "fixed")
+    assert main(["train", "procedural:tiny", "--out", str(tmp_path / "run")]) == 2
+    assert "TSPLUS_SFM_FOCAL='fixed'" in one_line(capsys.readouterr().err) and not (tmp_path / "run").exists()
 
 
 def test_a_bad_flag_in_a_real_process_is_one_line_and_writes_nothing(tmp_path):

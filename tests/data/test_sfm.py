@@ -295,8 +295,9 @@ def test_the_sfm_bar_moves_during_a_long_silent_call():
 
 def test_the_mappers_are_tried_in_turn_until_one_registers_every_photo(monkeypatch):
     """With an EXIF focal length: the global mapper holding it, then refining it, then the
-    incremental mapper; without: the last two. The first that registers every photo ends the
-    search; otherwise the one that registers the most wins, the earlier on a tie."""
+    incremental mapper; without (or with ``TSPLUS_SFM_FOCAL=refine``): the last two. The first
+    that registers every photo ends the search; otherwise the one that registers the most wins,
+    the earlier on a tie; whether the model kept held the focal length is said."""
     from tsplus_wgpu.data import photos
     from tsplus_wgpu.data.sfm import _Progress
 
@@ -322,15 +323,20 @@ def test_the_mappers_are_tried_in_turn_until_one_registers_every_photo(monkeypat
 
         monkeypatch.setattr(photos, "_global_mapping", fake_global)
         monkeypatch.setattr(photos, "_incremental_mapping", fake_incremental)
-        best = photos._mapping(None, None, None, None, _Progress(False, 1, ""), 10)
+        best, held = photos._mapping(None, None, None, None, _Progress(False, 1, ""), 10)
+        assert held == (best is not None and best.tag == "held")
         return calls, best.tag if best is not None else None
 
-    assert run(True, dict(held=10, **{"global": 10}, incremental=10)) == (["held"], "held")
-    assert run(False, dict(held=10, **{"global": 10}, incremental=10)) == (["global"], "global")
-    assert run(True, dict(held=8, **{"global": None}, incremental=10)) == (["held", "global", "incremental"], "incremental")
-    assert run(True, dict(held=8, **{"global": 9}, incremental=9)) == (["held", "global", "incremental"], "global")
-    assert run(True, dict(held=8, **{"global": 7}, incremental=8)) == (["held", "global", "incremental"], "held")
-    assert run(False, dict(held=0, **{"global": None}, incremental=0)) == (["global", "incremental"], None)
+    monkeypatch.delenv("TSPLUS_SFM_FOCAL", raising=False)
+    every = dict(held=10, incremental=10, **{"global": 10})
+    assert run(True, every) == (["held"], "held")
+    assert run(False, every) == (["global"], "global")
+    assert run(True, dict(held=8, incremental=10, **{"global": None})) == (["held", "global", "incremental"], "incremental")
+    assert run(True, dict(held=8, incremental=9, **{"global": 9})) == (["held", "global", "incremental"], "global")
+    assert run(True, dict(held=8, incremental=8, **{"global": 7})) == (["held", "global", "incremental"], "held")
+    assert run(False, dict(held=0, incremental=0, **{"global": None})) == (["global", "incremental"], None)
+    monkeypatch.setenv("TSPLUS_SFM_FOCAL", "refine")
+    assert run(True, every) == (["global"], "global")
 
 
 @pytest.mark.slow
@@ -346,6 +352,7 @@ def test_a_forward_walk_with_exif_is_posed_like_the_dataset(tmp_path, monkeypatc
     if not (data / "lund").is_dir():
         pytest.skip(f"shared data scene {data / 'lund'} not found (set TSPLUS_DATA)")
     monkeypatch.delenv("TSPLUS_SFM_THREADS", raising=False)      # one thread: the same poses on every run
+    monkeypatch.delenv("TSPLUS_SFM_FOCAL", raising=False)
     folder = tmp_path / "walk"      # EXIF 35 mm equivalent 34 mm: COLMAP's prior 589 px (the model's 583)
     exif_copy(data / "lund" / "images", folder, 34, width=600)
     sc = load_scene(folder, split="none", cache_dir=tmp_path / "cache")
@@ -358,3 +365,5 @@ def test_a_forward_walk_with_exif_is_posed_like_the_dataset(tmp_path, monkeypatc
           f"rotation error median {np.median(per):.2f} max {np.max(per):.2f} deg")
     assert len(sc.cameras) == 29
     assert np.median(per) < 2.0
+    said = [w for w in sc.warnings if "SfM held the focal length the photos' EXIF gives (589 px)" in w]
+    assert len(said) == 1 and "TSPLUS_SFM_FOCAL=refine" in said[0]

@@ -98,8 +98,9 @@ def main(argv=None):
     from ..data.long_calls import restore_signals, stop_on_signals
     from ..gpu.context import NoAdapterError
     try:
-        from ..data.sfm import sfm_threads
+        from ..data.sfm import sfm_focal, sfm_threads
         sfm_threads()   # a bad TSPLUS_SFM_THREADS is an error at the start, not after loading a scene
+        sfm_focal()     # and TSPLUS_SFM_FOCAL
         old = stop_on_signals()   # SIGTERM, SIGHUP: one line as for Ctrl-C, never COLMAP's crash report
         try:
             return command_module(args.command).run(args)

@@ -19,7 +19,7 @@ from .errors import SceneError
 from .images import list_images, read_image_size
 from .cache import mark_used, trim
 from .long_calls import _Progress
-from .sfm import SEQUENTIAL_OVERLAP, _extract_and_match, _fingerprint, _pycolmap, cache_root, sfm_threads
+from .sfm import SEQUENTIAL_OVERLAP, _extract_and_match, _fingerprint, _pycolmap, cache_root, sfm_focal, sfm_threads
 
 #: a folder of more photos than this is matched in the photos' natural name order like a video's
 #: frames (phones name photos in the order they were taken): every pair of 300 photos is 44,850
@@ -71,6 +71,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     """
     pycolmap = _pycolmap()
     sfm_threads()   # a bad TSPLUS_SFM_THREADS is an error before any work, never a fallback
+    focal = sfm_focal()
     pycolmap.set_random_seed(0)
     warnings = warnings if warnings is not None else []
     photo_dir = Path(photo_dir)
@@ -82,6 +83,8 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
         warnings.append(note)
     ordered = not sequential and len(names) > ORDERED_PHOTOS_MIN
     mode = f"sequential{SEQUENTIAL_OVERLAP}" if sequential else (f"ordered{SEQUENTIAL_OVERLAP}" if ordered else "")
+    if focal == "refine":       # TSPLUS_SFM_FOCAL=refine: a model of its own
+        mode += "refine"
     groups = camera_groups(photo_dir, names)
     if len(groups) > 1:      # a camera a group (before: one a photo of another size); one group keeps its key
         mode += f"groups{len(groups)}"
@@ -188,7 +191,7 @@ def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, w
                        extract_units=len(names) * STEP_SECONDS["image"], groups=groups,
                        match_units=_pair_count(names, sequential or ordered) * STEP_SECONDS["pair"])
     n_pairs = _pair_count(names, sequential or ordered)
-    best = _mapping(pycolmap, db, photo_dir, work, prog, len(names))
+    best, held = _mapping(pycolmap, db, photo_dir, work, prog, len(names))
     nreg = best.num_reg_images() if best is not None else 0
     if ordered and nreg < ORDERED_MIN_SHARE * len(names):
         warnings.append(f"SfM of the photos in name order registered {nreg} of {len(names)}: every pair matched "
@@ -202,19 +205,24 @@ def _photos_model(pycolmap, work, photo_dir, names, sequential, ordered, prog, w
             pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)
         for old in ("sparse_all", "sparse_global", "sparse_global_held"):
             shutil.rmtree(work / old, ignore_errors=True)
-        best = _mapping(pycolmap, db, photo_dir, work, prog, len(names))
+        best, held = _mapping(pycolmap, db, photo_dir, work, prog, len(names))
+    if held:
+        focals = sorted({f"{c.focal_length:.0f}" for c in best.cameras.values()})
+        warnings.append(f"SfM held the focal length the photos' EXIF gives ({', '.join(focals)} px); if they were "
+                        "cropped or zoomed after shooting, set TSPLUS_SFM_FOCAL=refine")
     return best
 
 
 def _mapping(pycolmap, db, photo_dir, work, prog, count: int):
-    """The reconstruction of the matched database ``db`` of ``count`` photos that registers the
-    most of them (None when there is none). Tried in turn until one registers every photo, the
-    first kept on a tie: COLMAP's global mapper with the focal length the photos' EXIF gives
-    held (only when every camera has one), the global mapper refining the focal length, the
-    incremental mapper (docs/measurements.md, "A forward walk: the global mapper")."""
-    tries = [True] if _exif_focal(pycolmap, db) else []
+    """``(model, held)``: the reconstruction of the matched database ``db`` of ``count`` photos
+    that registers the most of them (None when there is none), and whether it held the EXIF
+    focal length. Tried in turn until one registers every photo, the first kept on a tie:
+    COLMAP's global mapper with the focal length the photos' EXIF gives held (only when every
+    camera has one, unless ``TSPLUS_SFM_FOCAL=refine``), the global mapper refining the focal
+    length, the incremental mapper (docs/measurements.md, "A forward walk: the global mapper")."""
+    tries = [True] if sfm_focal() == "exif" and _exif_focal(pycolmap, db) else []
     tries += [False, None]
-    best, got = None, -1
+    best, got, held = None, -1, False
     for k, hold in enumerate(tries):
         if k:
             prog.add(count * STEP_SECONDS["register"])
@@ -224,10 +232,10 @@ def _mapping(pycolmap, db, photo_dir, work, prog, count: int):
             rec = _global_mapping(pycolmap, db, photo_dir, work, prog, count, hold)
         n = rec.num_reg_images() if rec is not None else 0
         if n > got:
-            best, got = rec, n
+            best, got, held = rec, n, hold is True
         if got >= count:
             break
-    return best
+    return best, held
 
 
 def _exif_focal(pycolmap, db) -> bool:

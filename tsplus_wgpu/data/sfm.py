@@ -58,6 +58,18 @@ SEQUENTIAL_OVERLAP = 10
 GUIDED_NEIGHBOURS = 12
 
 
+def sfm_focal() -> str:
+    """What a photo folder's SfM does with the focal length the photos' EXIF gives:
+    ``TSPLUS_SFM_FOCAL=exif`` (the default) holds it while every photo has one (a forward walk
+    hardly constrains the focal length: docs/data.md), ``refine`` lets the mapper refine it, for
+    photos cropped or zoomed after shooting, whose EXIF no longer fits them."""
+    raw = os.environ.get("TSPLUS_SFM_FOCAL", "exif").strip().lower()
+    if raw not in ("exif", "refine"):
+        raise SceneError(f"TSPLUS_SFM_FOCAL={raw!r}: expected exif (hold the focal length the photos' EXIF gives) "
+                         "or refine (for photos cropped after shooting)")
+    return raw
+
+
 def sfm_threads() -> int:
     """pycolmap's threads for feature extraction, matching, mapping and triangulation: 1 unless
     ``TSPLUS_SFM_THREADS`` says otherwise (``-1``: all cores).
