@@ -367,3 +367,39 @@ def test_a_forward_walk_with_exif_is_posed_like_the_dataset(tmp_path, monkeypatc
     assert np.median(per) < 2.0
     said = [w for w in sc.warnings if "SfM held the focal length the photos' EXIF gives (589 px)" in w]
     assert len(said) == 1 and "TSPLUS_SFM_FOCAL=refine" in said[0]
+
+
+@pytest.mark.slow
+def test_a_wrong_exif_focal_length_is_held_and_said_and_refine_recovers(tmp_path, cup_near, monkeypatch):
+    """Cup photos given an EXIF focal length 25 % short (as a photo cropped after shooting keeps
+    it): held by default, and said in a warning naming ``TSPLUS_SFM_FOCAL=refine``; with that
+    variable the mapper refines it back to the dataset's (about 295 px at 400x300) and the
+    relative rotations agree with the dataset's within a degree, in a cache entry of its own."""
+    from PIL import Image
+    ref, order = cup_near
+    src, photos = tmp_path / "src", tmp_path / "photos"
+    src.mkdir()
+    for i in order[:10]:
+        write_image(src / ref.image_names[i], resize_area(ref.images[i], 400, 300))
+    photos.mkdir()
+    for p in sorted(src.iterdir()):
+        with Image.open(p) as im:
+            rgb = im.convert("RGB")
+        ex = rgb.getexif()
+        ex[0x010F], ex[0x0110] = "Apple", "iPhone"
+        ex.get_ifd(0x8769)[0xA405] = 19                  # COLMAP's prior 220 px
+        rgb.save(photos / (p.stem + ".jpg"), quality=95, exif=ex.tobytes())
+    monkeypatch.delenv("TSPLUS_SFM_FOCAL", raising=False)
+    held = load_scene(photos, split="none", cache_dir=tmp_path / "cache")
+    assert held.cameras[0].fx == pytest.approx(219.6, abs=0.5)
+    assert any("SfM held the focal length the photos' EXIF gives (220 px)" in w and "TSPLUS_SFM_FOCAL=refine" in w
+               for w in held.warnings)
+    monkeypatch.setenv("TSPLUS_SFM_FOCAL", "refine")
+    sc = load_scene(photos, split="none", cache_dir=tmp_path / "cache")
+    assert not any("reused cached SfM model" in w or "SfM held" in w for w in sc.warnings)
+    assert sc.cameras[0].fx == pytest.approx(295, rel=0.03)
+    by_name = {n: c for n, c in zip(ref.image_names, ref.cameras)}
+    errs = [rotation_angle_deg((sc.cameras[a].R @ sc.cameras[b].R.T)
+                               @ (by_name[sc.image_names[a]].R @ by_name[sc.image_names[b]].R.T).T)
+            for a in range(len(sc.cameras)) for b in range(a + 1, len(sc.cameras))]
+    assert len(sc.cameras) == 10 and max(errs) < 1.0
