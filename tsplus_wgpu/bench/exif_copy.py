@@ -3,8 +3,8 @@
 The shared scenes' photos carry no EXIF, while every phone photo does, and the photo folder's
 SfM starts from its focal length (and holds it through a forward walk: docs/data.md). This
 makes the copies that measure that case: each JPEG or PNG re-saved as a JPEG (quality 95) with
-``FocalLengthIn35mmFilm`` (COLMAP's prior: that over 36 mm times the larger side, roughly),
-optionally at a smaller width.
+``FocalLengthIn35mmFilm`` (COLMAP's prior: that over 35 mm film's 43.3 mm diagonal, times the
+image's diagonal: 34 mm is 982 px at 1000x750), optionally at a smaller width.
 
     python -m tsplus_wgpu.bench.exif_copy ../shared/data/lund/images LUND_EXIF --focal35 34
     tsplus train LUND_EXIF --out RUN
