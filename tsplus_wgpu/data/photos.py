@@ -240,11 +240,8 @@ def _mapping(pycolmap, db, photo_dir, work, prog, count: int):
 
 def _exif_focal(pycolmap, db) -> bool:
     """Whether every camera of ``db`` has its focal length from the photos' EXIF (COLMAP's prior)."""
-    base = pycolmap.Database.open(str(db))
-    try:
+    with pycolmap.Database.open(db) as base:
         cams = base.read_all_cameras()
-    finally:
-        base.close()
     return bool(cams) and all(c.has_prior_focal_length for c in cams)
 
 

@@ -84,8 +84,8 @@ def triangulated(specs, background, train_idx, cache_dir, progress, warnings, le
     warnings.append(f"initial points triangulated with pycolmap from {len(use)} posed images at full size "
                     f"(mean reprojection error {info['mean_reprojection_error']:.2f} px"
                     + (", cached" if "cached" in info else "") + ")")
+    err = info.get("pose_error")
     for k in map(int, info.get("pose_off", ())):      # photos whose pose disagrees with their matches
-        err = info["pose_error"]
         warnings.append(f"{sub[k].name}: its pose disagrees with its matches to the other photos (epipolar error "
                         f"{err[k] * 100:.2f} % of the image diagonal, the median photo's {np.nanmedian(err) * 100:.2f} "
                         "%): left out of training and of the triangulation; correct or remove it in the camera model")
