@@ -226,13 +226,17 @@ def test_an_upright_export_reads_back_into_its_world(model_cam, mr, tmp_path, fm
     """A GLB / OBJ / PLY written upright records its rotation, so `tsplus eval` / `view --scene` of it
     draw the world the photos were taken in; re-exporting it upright gives the same file frame."""
     from tsplus_wgpu.data.upright import Upright, engine_rotation
-    from tsplus_wgpu.io.export import file_rotation
+    from tsplus_wgpu.io.export import file_frame
     model, cam = model_cam
     up = np.array([0.2, -0.9, 0.3]) / np.linalg.norm([0.2, -0.9, 0.3])
     fwd = np.cross(up, [1.0, 0.0, 0.0])
     a = engine_rotation(Upright(up, fwd / np.linalg.norm(fwd), "", 0.0, 0, 1))
     path = export(model, tmp_path / f"m.{fmt}", rotation=a)
-    np.testing.assert_allclose(file_rotation(path), a, atol=1e-15)
+    np.testing.assert_allclose(file_frame(path)[:3, :3], a, atol=1e-15)
+    assert np.array_equal(file_frame(path)[:3, 3], [0, 0, 0])
+    if fmt != "glb":                                                     # a rotation's record is its nine numbers
+        rec = [ln for ln in path.read_bytes()[:4096].split(b"\n") if b"tsplus_world_to_file" in ln]
+        assert len(rec) == 1 and len(rec[0].split()) == 11
     t = trimesh.load(path, force="mesh", process=False)                  # what an engine reads: upright
     np.testing.assert_allclose(t.vertices, model.positions @ a.T, atol=1e-5)
     back, info = load_run(path)                                          # what we read: the world
@@ -246,6 +250,6 @@ def test_an_upright_export_reads_back_into_its_world(model_cam, mr, tmp_path, fm
     assert main(["export", str(path), "--out", str(out), "--y-up"]) == 0
     np.testing.assert_allclose(trimesh.load(out, force="mesh", process=False).vertices, t.vertices, atol=2e-5)
     plain = export(model, tmp_path / f"plain.{fmt}")                    # no rotation: nothing recorded
-    assert file_rotation(plain) is None
+    assert file_frame(plain) is None
     np.testing.assert_allclose(load_run(plain)[0].positions, model.positions, atol=1e-5)
-    assert file_rotation(tmp_path / "missing.glb") is None
+    assert file_frame(tmp_path / "missing.glb") is None

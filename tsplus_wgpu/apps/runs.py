@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.export import ExportError, file_rotation, read_mesh, read_ply, read_ply_colors
+from ..io.export import ExportError, file_frame, read_mesh, read_ply, read_ply_colors
 from ..types import TriangleModel
 
 
@@ -100,14 +100,19 @@ def load_run(path):
 
 
 def _to_world(model: TriangleModel, path, info):
-    """A mesh file `tsplus export --y-up` wrote, turned back into the world it was exported
-    from (its rotation is recorded in it), with its +Y kept in ``info`` (the viewer's up)."""
-    rot = file_rotation(path) if path.suffix.lower() in (".glb", ".obj", ".ply") else None
-    if rot is not None:
-        model = TriangleModel(model.positions @ rot, model.triangles, model.sh, model.opacity)
-        info["from"] += " (turned back into the world it was exported from)"
-        info["upright"] = {"up": rot[1].tolist(), "forward": (-rot[2]).tolist(), "how": "the file's own frame"}
-        info["file_up"] = rot[1].tolist()
+    """A mesh file `tsplus export --y-up` (or ``--origin`` / ``--scale``) wrote, taken back into
+    the world it was exported from (its frame is recorded in it), with its +Y kept in ``info``
+    (the viewer's up)."""
+    frame = file_frame(path) if path.suffix.lower() in (".glb", ".obj", ".ply") else None
+    if frame is not None:
+        a, t = frame[:3, :3], frame[:3, 3]
+        s2 = float(np.cbrt(np.linalg.det(a))) ** 2
+        model = TriangleModel((model.positions - t) @ a / s2, model.triangles, model.sh, model.opacity)
+        info["from"] += " (taken back into the world it was exported from)"
+        up = a[1] / np.linalg.norm(a[1])
+        fwd = -a[2] / np.linalg.norm(a[2])
+        info["upright"] = {"up": up.tolist(), "forward": fwd.tolist(), "how": "the file's own frame"}
+        info["file_up"] = up.tolist()
     return model, info
 
 

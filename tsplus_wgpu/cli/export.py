@@ -31,6 +31,15 @@ def add_parser(sub):
     p.add_argument("--up-from", choices=("cameras", "world"), default="cameras",
                    help="with --y-up: cameras (default) or world (the world's -y is up, as OpenCV's y-down worlds "
                         "have it: (x, -y, -z))")
+    p.add_argument("--origin", choices=("world", "ground"), default="world",
+                   help="world (default: the world's own origin) or ground: the origin on the ground under the "
+                        "middle of what the photos look at (the ground: the level surface below the cameras); "
+                        "implies --y-up and needs the run's scene or --scene")
+    p.add_argument("--scale", type=float, default=None, metavar="F",
+                   help="multiply every length by F (e.g. metres per world unit); default 1: the world's units")
+    p.add_argument("--camera-height", type=float, default=None, metavar="H",
+                   help="scale so that the cameras stand H above the ground (e.g. 1.5 for photos taken standing, "
+                        "in metres): an estimate of metric size; implies --y-up, needs the scene's cameras")
     p.add_argument("--bake", choices=BAKES, default="mesh",
                    help="vertex colour: mesh (the mesh file's own colours: for a run, fitted to the training photos "
                         "unless it was trained with --mesh-colors dc; SH DC for a checkpoint), dc (SH DC term), fit "
@@ -69,31 +78,87 @@ def _bake(args, model, info):
     return colors, "a least-squares fit to the training views"
 
 
-def _engine_frame(args, info):
-    """``(rotation or None, words)``: how ``--y-up`` turns this run's world into an engine's."""
-    from ..data.upright import Upright, engine_rotation, files_upright, scene_upright
+def _scene_cameras(args, info):
+    """``(cameras, photo files, scene argument)`` of the run's scene or ``--scene`` (poses and EXIF,
+    no pixel read), or ``(None, None, scene argument)`` with a warning line where they cannot be read."""
+    scene_arg = args.scene or info.get("scene")
+    if not scene_arg:
+        return None, None, None
+    from ..data.errors import SceneError
+    from ..data.loader import load_scene_arg, scene_cameras
+    images = args.images or (None if args.scene else info.get("images"))
+    try:
+        if str(scene_arg).startswith("procedural"):
+            scene = load_scene_arg(scene_arg)
+            return scene.cameras, None, scene_arg
+        cams, files = scene_cameras(scene_arg, images)
+        return cams, files, scene_arg
+    except (SceneError, UserError, OSError) as exc:
+        print(f"warning: --y-up: the cameras of {scene_arg} could not be read ({exc}); written with the "
+              f"world's -y up", file=sys.stderr)
+        return None, None, scene_arg
+
+
+def _engine_frame(args, info, cams):
+    """``(rotation or None, words)``: how ``--y-up`` turns this run's world into an engine's.
+    ``cams``: a callable giving :func:`_scene_cameras`'s triple (read once, when needed)."""
+    from ..data.upright import Upright, engine_rotation, estimate_up, files_upright
     if not args.y_up:
         return None, ""
     if args.up_from == "world":
         return Y_UP, "y up: the world's -y"
     up = Upright.from_dict(info["upright"]) if isinstance(info.get("upright"), dict) else None
-    scene_arg = args.scene or info.get("scene")
-    if up is None and scene_arg:
-        from ..data.errors import SceneError
-        from ..data.loader import load_scene_arg, scene_cameras
-        images = args.images or (None if args.scene else info.get("images"))
-        try:
-            if str(scene_arg).startswith("procedural"):
-                up = scene_upright(load_scene_arg(scene_arg))
-            else:                               # the poses and the photos' EXIF only: no pixel is read
-                up = files_upright(*scene_cameras(scene_arg, images))
-        except (SceneError, UserError, OSError) as exc:
-            print(f"warning: --y-up: the cameras of {scene_arg} could not be read ({exc}); written with the "
-                  f"world's -y up", file=sys.stderr)
+    if up is None:
+        cameras, files, _ = cams()
+        if cameras is not None:
+            up = estimate_up(cameras) if files is None else files_upright(cameras, files)
     if up is None:
         return Y_UP, "y up: the world's -y (no cameras known; give --scene for the cameras' up)"
     counts = f"; {up.cameras} cameras, rms roll {up.rms_roll_deg:.1f} deg" if up.cameras else ""
     return engine_rotation(up), f"y up: the cameras' up, from {up.how}{counts}"
+
+
+def _check_lengths(args):
+    for flag, v in (("--scale", args.scale), ("--camera-height", args.camera_height)):
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise ExportError(f"{flag} {v:g}: expected a positive length factor")
+    if args.scale is not None and args.camera_height is not None:
+        raise ExportError("--scale and --camera-height both set the size; give one")
+    if args.origin != "world" or args.camera_height is not None:
+        args.y_up = True
+
+
+def _placement(args, model, rotation, cams):
+    """``(frame: the 3x3 rotation or a 4x4 similarity, words)`` for ``--origin`` / ``--scale`` /
+    ``--camera-height`` (:mod:`~tsplus_wgpu.apps.placement`)."""
+    from ..apps.placement import PlacementError, engine_frame, find_placement
+    if args.origin == "world" and args.scale is None and args.camera_height is None:
+        return rotation, ""
+    rot = np.eye(3) if rotation is None else rotation
+    scale, origin, words = args.scale or 1.0, None, []
+    if args.origin == "ground" or args.camera_height is not None:
+        cameras, _, scene_arg = cams()
+        what = "--origin ground" if args.origin == "ground" else "--camera-height"
+        if cameras is None:
+            raise ExportError(f"{what}: needs the cameras of the run's scene; "
+                              f"{'they could not be read' if scene_arg else 'the run names none'}: give --scene")
+        centers = np.array([c.center for c in cameras])
+        dirs = np.array([c.R[2] for c in cameras])
+        try:
+            pl = find_placement(model.positions, model.triangles, centers, dirs, rot[1])
+        except PlacementError as exc:
+            raise ExportError(f"{what}: {exc}; give --origin world, and --scale for the size") from None
+        words.append(f"the ground {pl.camera_height:.4g} world units below the {pl.cameras} cameras' median height "
+                     f"({100 * pl.share:.0f} % of the level surface near them)")
+        if args.origin == "ground":
+            origin = pl.origin
+            words.append(f"origin on the ground under {pl.middle}")
+        if args.camera_height is not None:
+            scale = args.camera_height / pl.camera_height
+            words.append(f"scale {scale:.4g}: the cameras {args.camera_height:g} above the ground")
+    if args.scale is not None:
+        words.append(f"scale {scale:g}")
+    return engine_frame(rot, origin, scale), "; ".join(words)
 
 
 def run(args):
@@ -114,11 +179,21 @@ def run(args):
         colors, source = None, "SH DC"
     if args.bake in ("fit", "views"):
         colors, source = _bake(args, model, info)
-    rotation, frame = _engine_frame(args, info)
+    _check_lengths(args)
+    got = []
+
+    def cams():
+        if not got:
+            got.append(_scene_cameras(args, info))
+        return got[0]
+    rotation, frame = _engine_frame(args, info, cams)
+    rotation, placed = _placement(args, model, rotation, cams)
     export(model, out, fmt=fmt, colors=colors, rotation=rotation)
     print(f"{info.get('from', 'model')}: {model.num_vertices} vertices, {model.num_triangles} triangles, SH "
           f"{model.sh_size} coefficients")
     print(connectivity_line(connectivity(model.triangles, model.num_vertices)))
     print(f"wrote {out} ({fmt}, {out.stat().st_size} bytes{', ' + frame if frame else ''}, colour from "
           f"{source})")
+    if placed:
+        print(f"placed: {placed}")
     return 0

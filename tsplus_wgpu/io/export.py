@@ -10,7 +10,8 @@ A float32-valued model (as the trainer's) round-trips bit for bit.
 
 GLB: glTF 2.0 with ``POSITION`` and ``COLOR_0``. ``rotation`` (a 3x3 rotation, e.g.
 :func:`~tsplus_wgpu.data.upright.engine_rotation`: the cameras' up to +Y) turns the world into an
-engine's frame; ``y_up`` is the fixed one for worlds whose -y is up (OpenCV's y down, z forward),
+engine's frame (a 4x4 similarity, :func:`~tsplus_wgpu.apps.placement.engine_frame`, also moves the
+origin onto the ground and scales the lengths); ``y_up`` is the fixed one for worlds whose -y is up (OpenCV's y down, z forward),
 a rotation of 180 degrees about x, ``(x, -y, -z)``.
 """
 
@@ -156,30 +157,54 @@ def encode_ply(model: TriangleModel, colors=None) -> bytes:
 Y_UP = np.diag([1.0, -1.0, -1.0])
 
 
-def _placed(positions, rotation=None):
-    """``positions`` (float64) turned by ``rotation`` (3x3, or None: as they are)."""
+def frame_matrix(frame) -> np.ndarray | None:
+    """``frame`` (None, a 3x3 rotation or a 4x4 similarity ``s R | t``) as a 4x4 float64
+    matrix, checked: ``s > 0``, ``R`` a rotation; None stays None."""
+    if frame is None:
+        return None
+    f = np.asarray(frame, np.float64)
+    if f.shape == (3, 3):
+        f = np.vstack([np.hstack([f, np.zeros((3, 1))]), [0.0, 0.0, 0.0, 1.0]])
+    if f.shape != (4, 4) or not np.all(np.isfinite(f)) or not np.allclose(f[3], [0, 0, 0, 1]):
+        raise ExportError("frame: not a 3x3 rotation or a 4x4 similarity; nothing written")
+    det = np.linalg.det(f[:3, :3])
+    s = np.cbrt(det) if det > 0 else 0.0
+    if not s > 0 or not np.allclose(f[:3, :3] @ f[:3, :3].T / (s * s), np.eye(3), atol=1e-9):
+        raise ExportError("frame: not a rotation with a positive scale; nothing written")
+    return f
+
+
+def _placed(positions, frame=None):
+    """``positions`` (float64) taken through ``frame`` (:func:`frame_matrix`; None: as they are)."""
     pos = np.asarray(positions, np.float64)
-    if rotation is None:
-        return pos
-    rot = np.asarray(rotation, np.float64)
-    if rot.shape != (3, 3) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-9) or np.linalg.det(rot) < 0:
-        raise ExportError("rotation: not a 3x3 rotation; nothing written")
-    return pos @ rot.T
+    f = frame_matrix(frame)
+    return pos if f is None else pos @ f[:3, :3].T + f[:3, 3]
 
 
-#: where a GLB (``asset.extras``), an OBJ or a PLY (a header comment) records the rotation its positions
-#: were written with, so that reading it back gives the world again (``tsplus eval`` of an upright GLB)
+#: where a GLB (``asset.extras``), an OBJ or a PLY (a header comment) records the frame its positions
+#: were written in, so that reading it back gives the world again (``tsplus eval`` of an upright GLB):
+#: a 3x3 rotation, or a 4x4 similarity when the export also moved the origin or scaled (``--origin``,
+#: ``--scale``)
 FRAME_KEY = "tsplus_world_to_file"
 
 
 def _rotation(y_up, rotation):
-    """The rotation an export applies: ``rotation``, else the fixed ``Y_UP`` when ``y_up``, else None."""
+    """The frame an export applies: ``rotation`` (3x3 or 4x4), else the fixed ``Y_UP`` when ``y_up``, else None."""
     return Y_UP if y_up and rotation is None else rotation
 
 
+def _recorded(frame):
+    """What is recorded of a frame: its rotation alone where it is one (as before similarities), else 4x4."""
+    f = frame_matrix(frame)
+    return f[:3, :3] if np.allclose(f[:3, 3], 0) and np.allclose(f[:3, :3] @ f[:3, :3].T, np.eye(3), atol=1e-12) \
+        else f
+
+
 def _record(rot) -> str:
-    """``FRAME_KEY`` and the rotation's nine numbers, exactly (the OBJ / PLY header comment)."""
-    return f"{FRAME_KEY} " + " ".join(f"{v:.17g}" for v in np.asarray(rot, float).ravel())
+    """``FRAME_KEY`` and the frame's 9 (rotation) or 12 (the top three rows of the similarity) numbers,
+    exactly (the OBJ / PLY header comment)."""
+    r = _recorded(rot)
+    return f"{FRAME_KEY} " + " ".join(f"{v:.17g}" for v in (r if r.shape == (3, 3) else r[:3]).ravel())
 
 
 def encode_glb(positions, triangles, colors, y_up=False, rotation=None) -> bytes:
@@ -187,7 +212,7 @@ def encode_glb(positions, triangles, colors, y_up=False, rotation=None) -> bytes
     mesh = _trimesh(_placed(positions, rot).astype(np.float32), triangles, colors)
 
     def record(tree):
-        tree.setdefault("asset", {}).setdefault("extras", {})[FRAME_KEY] = np.asarray(rot, float).tolist()
+        tree.setdefault("asset", {}).setdefault("extras", {})[FRAME_KEY] = _recorded(rot).tolist()
     return mesh.export(file_type="glb", tree_postprocessor=None if rot is None else record)
 
 
@@ -203,9 +228,9 @@ def encode_obj(positions, triangles, colors, y_up=False, rotation=None) -> bytes
     return text.encode()
 
 
-def file_rotation(path) -> np.ndarray | None:
-    """The rotation ``A`` a GLB, OBJ or PLY of ours was written with (positions ``A @ p`` of the
-    world points ``p``), or None: another program's file, or no rotation."""
+def file_frame(path) -> np.ndarray | None:
+    """The 4x4 frame ``F`` a GLB, OBJ or PLY of ours was written in (positions ``F @ [p, 1]`` of the
+    world points ``p``), or None: another program's file, or written in the world's own frame."""
     import json
     import re
     path = Path(path)
@@ -217,23 +242,24 @@ def file_rotation(path) -> np.ndarray | None:
             with open(path, "rb") as f:
                 f.seek(20)
                 tree = json.loads(f.read(n))
-            rot = np.asarray(tree["asset"]["extras"][FRAME_KEY], np.float64)
+            rec = np.asarray(tree["asset"]["extras"][FRAME_KEY], np.float64)
         else:
-            m = re.search(rb"^(?:# |comment )" + FRAME_KEY.encode() + rb"((?: +\S+){9}) *$", head, re.MULTILINE)
+            m = re.search(rb"^(?:# |comment )" + FRAME_KEY.encode() + rb"((?: +\S+){9}(?:(?: +\S+){3})?) *$", head,
+                          re.MULTILINE)
             if m is None:
                 return None
-            rot = np.array([float(v) for v in m.group(1).split()]).reshape(3, 3)
+            vals = np.array([float(v) for v in m.group(1).split()])
+            rec = vals.reshape(3, 3) if len(vals) == 9 else np.vstack([vals.reshape(3, 4), [0.0, 0.0, 0.0, 1.0]])
+        return frame_matrix(rec)
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
-    if rot.shape != (3, 3) or not np.all(np.isfinite(rot)) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6):
-        return None
-    return rot
 
 
 def export(model: TriangleModel, path, fmt=None, colors=None, y_up=False, rotation=None):
     """Write ``model`` to ``path`` atomically (temp file + os.replace; nothing is left
     behind on error). ``fmt`` defaults to the file's extension; ``colors`` to SH DC;
-    ``rotation`` (3x3) turns the positions, else ``y_up`` the fixed ``(x, -y, -z)``."""
+    ``rotation`` (a 3x3 rotation, or a 4x4 similarity: :func:`frame_matrix`) takes the positions to
+    the file's frame, else ``y_up`` the fixed ``(x, -y, -z)``; the frame is recorded in the file."""
     path = Path(path)
     fmt = (fmt or path.suffix.lstrip(".")).lower()
     if fmt not in FORMATS:
@@ -242,6 +268,7 @@ def export(model: TriangleModel, path, fmt=None, colors=None, y_up=False, rotati
         raise ExportError("the mesh has no triangles; nothing to export")
     colors = dc_colors(model) if colors is None else np.asarray(colors, np.float64)
     rot = _rotation(y_up, rotation)
+    frame_matrix(rot)                            # a bad frame is refused before anything is written
     if fmt == "ply":
         if rot is not None:
             model = TriangleModel(_placed(model.positions, rot), model.triangles, model.sh, model.opacity)
