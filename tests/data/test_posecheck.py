@@ -167,3 +167,53 @@ def test_a_photo_with_a_wrong_pose_is_left_out_of_training(tmp_path):
     bad.points = good.points                      # the same count of points: the training views alone
     with pytest.raises(UserError, match="training views differ"):
         check_fingerprint("ckpt.npz", saved, data_fingerprint(bad, "S"))
+
+
+@pytest.mark.slow
+def test_a_held_out_photo_with_a_wrong_pose_is_left_out_of_the_evaluation(tmp_path):
+    """The same scene with one held-out camera tilted by 8 degrees: matched with its nearest
+    training photos it is named and left out of the held-out views, while training and the
+    initial points stay as they were; the check is cached beside the triangulation."""
+    from tests.data.test_formats import write_llff
+    from tsplus_wgpu.data import heldout_poses as H
+    small = load_procedural("small", seed=0)
+    write_llff(tmp_path / "good", small)
+    good = load_scene(tmp_path / "good", points="triangulate", cache_dir=tmp_path / "cache")
+    assert not any("held-out photo" in w for w in good.warnings), good.warnings
+    entry = next((tmp_path / "cache").glob("tri_*"))
+    with np.load(entry / H.RESULT) as z:                       # every held-out photo judged, all right
+        assert len(z["errors"]) == len(good.test_indices) and np.all(np.isfinite(z["errors"]))
+    wrong = good.test_indices[1]
+    cams = list(small.cameras)
+    cams[wrong] = _turned(cams[wrong], 8.0)
+    small.cameras = cams
+    write_llff(tmp_path / "bad", small)
+    bad = load_scene(tmp_path / "bad", points="triangulate", cache_dir=tmp_path / "cache")
+    said = [w for w in bad.warnings if "held-out photo" in w]
+    assert len(said) == 1 and said[0].startswith(bad.image_names[wrong] + ":"), bad.warnings
+    assert "left out of the evaluation" in said[0]
+    assert bad.test_indices == [i for i in good.test_indices if i != wrong]
+    assert bad.train_indices == good.train_indices and np.array_equal(bad.points, good.points)
+    again = load_scene(tmp_path / "bad", points="triangulate", cache_dir=tmp_path / "cache")   # cached
+    assert again.test_indices == bad.test_indices and said[0] in again.warnings
+    assert not list(entry.glob("heldout.tmp*"))
+
+
+def test_the_held_out_rule_and_its_neighbours():
+    """One odd held-out photo goes; a majority of them never does (the poses as a whole are
+    off); nothing goes without a typical training error. Neighbours face the same way."""
+    from tsplus_wgpu.data.heldout_poses import disagreeing_held_out, neighbours
+    typical = 0.0005
+    assert disagreeing_held_out([0.0004, 0.006, 0.0006, float("nan")], typical) == [1]
+    assert disagreeing_held_out([0.006], typical) == [0]                        # one photo may always go
+    assert disagreeing_held_out([0.006, 0.007, 0.0005], typical) == []          # 2 of 3: not the photos
+    assert disagreeing_held_out([0.0015, 0.0004], 0.0002) == []                 # over 5x but under FLOOR
+    assert disagreeing_held_out([0.006], float("nan")) == []
+    small = load_procedural("tiny", seed=0)
+    got = neighbours(small.cameras, small.train_indices, small.test_indices, k=3)
+    for t, ns in got.items():
+        assert len(ns) == 3 and set(ns) <= set(small.train_indices)
+        assert all(small.cameras[j].R[2] @ small.cameras[t].R[2] > 0 for j in ns)
+        far = max(np.linalg.norm(small.cameras[j].center - small.cameras[t].center) for j in ns)
+        others = [np.linalg.norm(small.cameras[j].center - small.cameras[t].center) for j in small.train_indices]
+        assert far <= np.sort(others)[5]                                        # among the nearest

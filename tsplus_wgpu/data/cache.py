@@ -35,7 +35,7 @@ KINDS = {
 }
 #: kind -> the names a finished entry keeps (everything else is an intermediate file)
 KEEP = {
-    "tri": ("points.npz", "about.json"),
+    "tri": ("points.npz", "about.json", "heldout.npz"),
     "sfm": ("done.json", "sparse"),
     "video": ("frames",),
     "heif": ("done.json", "photos"),

@@ -171,20 +171,20 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
     train_idx = [j for j, o in enumerate(orig) if o in train_set]
     test_idx = [j for j, o in enumerate(orig) if o in test_set]
     names, models = [chosen[k].name for k in kept], dict(Counter(chosen[k].model for k in kept))
-    left_out = []       # training views whose pose disagrees with their matches (:mod:`.posecheck`)
+    left_out, held_off = [], []     # training / held-out views whose pose disagrees with their matches
     full = partial(_full_size_specs, fmt, root, images, [chosen[k] for k in kept], image_dir)   # when triangulating
     if points == "none":
         pts, cols, tracks, source = None, None, None, "none"
     elif pts is None or points in ("triangulate", "frusta"):
         pts, cols, source, tracks = initial_points(points, cameras, imgs, full(), bg, train_idx, bounds, cache_dir,
-                                                   progress, seed, warnings, left_out)
+                                                   progress, seed, warnings, left_out, test_idx, held_off)
     else:
         from .colmap import colmap_tracks  # noqa: PLC0415
         tracks, source = colmap_tracks(rec, names), "sfm"
         if points == "most":
             pts, cols, tracks, source = most_points((pts, cols, tracks), full(), bg, train_idx, cache_dir, progress,
-                                                    warnings, left_out)
-    train_idx = [j for j in train_idx if j not in left_out]
+                                                    warnings, left_out, test_idx, held_off)
+    train_idx, test_idx = [j for j in train_idx if j not in left_out], [j for j in test_idx if j not in held_off]
     pts, cols, tracks = _subsample(pts, cols, tracks, max_points, seed)
     return Scene(format=fmt, cameras=cameras, images=imgs, image_names=names, points=pts, point_colors=cols,
                  point_tracks=tracks, points_source=source, train_indices=train_idx, test_indices=test_idx,

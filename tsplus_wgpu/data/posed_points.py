@@ -4,7 +4,9 @@ frusta (:mod:`.frusta`), for :func:`~.loader.load_scene`.
 
 The triangulation also checks every training photo's pose against its own matches
 (:mod:`.posecheck`); the photos whose pose disagrees are named in a warning and added to
-``left_out``, which the loader takes out of the training views.
+``left_out``, which the loader takes out of the training views. The held-out photos are checked
+against their training neighbours (:mod:`.heldout_poses`) and go to ``held_off``, out of the
+held-out views.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ def triangulation_key(specs, background) -> str:
 
 
 def initial_points(points, cameras, imgs, specs, background, train_idx, bounds, cache_dir, progress, seed,
-                   warnings, left_out):
+                   warnings, left_out, test_idx=(), held_off=None):
     """Initial points without SfM ones (or when asked): triangulated with pycolmap from the
     posed training images at their full size (:func:`triangulated`), else made from the camera
     frusta. ``specs`` are the loaded frames at full size.
@@ -49,7 +51,8 @@ def initial_points(points, cameras, imgs, specs, background, train_idx, bounds, 
     ``cameras``; None for frusta points)."""
     from .frusta import frusta_points  # noqa: PLC0415
     if points != "frusta":
-        got = triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out)
+        got = triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out, test_idx=test_idx,
+                           held_off=held_off)
         if got is not None:
             return got[0], got[1], "triangulated", got[2]
     pts, cols = frusta_points(cameras, imgs, bounds=bounds, seed=seed)
@@ -59,12 +62,13 @@ def initial_points(points, cameras, imgs, specs, background, train_idx, bounds, 
 
 
 def triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out,
-                 fallback="initial points made from the camera frusta instead"):
+                 fallback="initial points made from the camera frusta instead", test_idx=(), held_off=None):
     """``(points, colours, track table or None)`` triangulated with pycolmap from the posed
     training images (all images when fewer than 2 are for training) at their full size, cached
     (so every downscale reuses them); None, with the warning ``"<why>: <fallback>"``, when that
     fails or there are not 2 images. ``specs`` are the loaded frames at full size; the track
-    table's view ids index them."""
+    table's view ids index them. The held-out photos ``test_idx`` are checked against their poses
+    too (:mod:`.heldout_poses`); those that disagree are named and added to ``held_off``."""
     from .scene import full_size_frame  # noqa: PLC0415
     from .sfm import cache_root, triangulate_frames  # noqa: PLC0415
     use = train_idx if len(train_idx) >= 2 else list(range(len(specs)))
@@ -90,15 +94,44 @@ def triangulated(specs, background, train_idx, cache_dir, progress, warnings, le
                         f"{err[k] * 100:.2f} % of the image diagonal, the median photo's {np.nanmedian(err) * 100:.2f} "
                         "%): left out of training and of the triangulation; correct or remove it in the camera model")
         left_out.append(use[k])
+    if held_off is not None and len(test_idx) and len(use) < len(specs):
+        _check_held_out(specs, use, list(test_idx), background, info, progress, warnings, held_off)
     tracks = info.get("tracks")
     return pts, cols, None if tracks is None else remap(tracks, np.asarray(use, np.int64))
 
 
-def most_points(sfm, specs, background, train_idx, cache_dir, progress, warnings, left_out):
+def _check_held_out(specs, use, test_idx, background, info, progress, warnings, held_off):
+    """:mod:`.heldout_poses` for the held-out photos ``test_idx`` against the training photos'
+    typical error in ``info`` (the triangulation's); a failure to check is a warning, never an error."""
+    from .heldout_poses import disagreeing_held_out, held_out_errors  # noqa: PLC0415
+    err = np.asarray(info.get("pose_error", ()), np.float64)
+    off = set(int(k) for k in info.get("pose_off", ()))
+    judged = [e for k, e in enumerate(err) if np.isfinite(e) and k not in off]
+    if len(judged) < 3:
+        return
+    typical = float(np.median(judged))
+    work = Path(info["work"]) if "work" in info else Path(info["cached"]).parent
+    train = [use[k] for k in range(len(use)) if k not in off]
+    try:
+        errors = held_out_errors(work, specs, train, test_idx, background, triangulation_key, progress)
+    except (RuntimeError, OSError, ValueError) as exc:
+        warnings.append(f"the held-out photos' poses could not be checked ({str(exc).splitlines()[0]})")
+        return
+    for k in disagreeing_held_out(errors, typical):
+        warnings.append(f"{specs[test_idx[k]].name}: a held-out photo whose pose disagrees with its matches to the "
+                        f"training photos (epipolar error {errors[k] * 100:.2f} % of the image diagonal, the median "
+                        f"training photo's {typical * 100:.2f} %): left out of the evaluation; correct or remove it "
+                        "in the camera model")
+        held_off.append(test_idx[k])
+
+
+def most_points(sfm, specs, background, train_idx, cache_dir, progress, warnings, left_out, test_idx=(),
+                held_off=None):
     """``points="most"``: ``(points, colours, tracks, source)`` of the SfM points ``sfm``
     (``(points, colours, tracks)``) or of :func:`triangulated`'s, whichever are more; a
     warning says which."""
-    got = triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out, "the SfM points kept")
+    got = triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out, "the SfM points kept",
+                       test_idx=test_idx, held_off=held_off)
     if got is None:
         return (*sfm, "sfm")
     n_sfm, n_tri = len(sfm[0]), len(got[0])
