@@ -191,3 +191,8 @@ def test_origin_ground_without_cameras_says_so(tmp_path, capsys):
     assert main(["export", str(run), "--out", str(tmp_path / "o.glb"), "--origin", "ground"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--origin ground: needs the cameras" in err and "--scene" in err
+    (run / "config.json").write_text(json.dumps({"extra": {"scene": str(tmp_path / "moved")}}))
+    assert main(["export", str(run), "--out", str(tmp_path / "o.glb"), "--camera-height", "1.5"]) == 2
+    err = capsys.readouterr().err                  # one line, not a warning and then the error
+    assert err.count("\n") == 1 and "--camera-height: the cameras of" in err and "moved" in err
+    assert not (tmp_path / "o.glb").exists()

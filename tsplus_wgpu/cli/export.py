@@ -78,30 +78,40 @@ def _bake(args, model, info):
     return colors, "a least-squares fit to the training views"
 
 
+def _placing(args) -> str:
+    """The flag that needs the scene's cameras to place the mesh, or ``""``."""
+    return "--origin ground" if args.origin == "ground" else "--camera-height" if args.camera_height is not None else ""
+
+
 def _scene_cameras(args, info):
-    """``(cameras, photo files, scene argument)`` of the run's scene or ``--scene`` (poses and EXIF,
-    no pixel read), or ``(None, None, scene argument)`` with a warning line where they cannot be read."""
+    """``(cameras, photo files)`` of the run's scene or ``--scene`` (poses and EXIF, no pixel read),
+    or ``(None, None)``: with a warning line where they cannot be read, or the one-line error
+    when placing the mesh (:func:`_placing`) needs them."""
     scene_arg = args.scene or info.get("scene")
     if not scene_arg:
-        return None, None, None
+        if _placing(args):
+            raise ExportError(f"{_placing(args)}: needs the cameras of the run's scene; the run names none: give "
+                              "--scene")
+        return None, None
     from ..data.errors import SceneError
     from ..data.loader import load_scene_arg, scene_cameras
     images = args.images or (None if args.scene else info.get("images"))
     try:
         if str(scene_arg).startswith("procedural"):
-            scene = load_scene_arg(scene_arg)
-            return scene.cameras, None, scene_arg
-        cams, files = scene_cameras(scene_arg, images)
-        return cams, files, scene_arg
+            return load_scene_arg(scene_arg).cameras, None
+        return scene_cameras(scene_arg, images)
     except (SceneError, UserError, OSError) as exc:
+        if _placing(args):
+            raise ExportError(f"{_placing(args)}: the cameras of {scene_arg} could not be read ({exc}); give "
+                              "--scene") from None
         print(f"warning: --y-up: the cameras of {scene_arg} could not be read ({exc}); written with the "
               f"world's -y up", file=sys.stderr)
-        return None, None, scene_arg
+        return None, None
 
 
 def _engine_frame(args, info, cams):
     """``(rotation or None, words)``: how ``--y-up`` turns this run's world into an engine's.
-    ``cams``: a callable giving :func:`_scene_cameras`'s triple (read once, when needed)."""
+    ``cams``: a callable giving :func:`_scene_cameras`'s pair (read once, when needed)."""
     from ..data.upright import Upright, engine_rotation, estimate_up, files_upright
     if not args.y_up:
         return None, ""
@@ -109,7 +119,7 @@ def _engine_frame(args, info, cams):
         return Y_UP, "y up: the world's -y"
     up = Upright.from_dict(info["upright"]) if isinstance(info.get("upright"), dict) else None
     if up is None:
-        cameras, files, _ = cams()
+        cameras, files = cams()
         if cameras is not None:
             up = estimate_up(cameras) if files is None else files_upright(cameras, files)
     if up is None:
@@ -136,12 +146,9 @@ def _placement(args, model, rotation, cams):
         return rotation, ""
     rot = np.eye(3) if rotation is None else rotation
     scale, origin, words = args.scale or 1.0, None, []
-    if args.origin == "ground" or args.camera_height is not None:
-        cameras, _, scene_arg = cams()
-        what = "--origin ground" if args.origin == "ground" else "--camera-height"
-        if cameras is None:
-            raise ExportError(f"{what}: needs the cameras of the run's scene; "
-                              f"{'they could not be read' if scene_arg else 'the run names none'}: give --scene")
+    what = _placing(args)
+    if what:
+        cameras, _ = cams()                         # raises when they cannot be had
         centers = np.array([c.center for c in cameras])
         dirs = np.array([c.R[2] for c in cameras])
         try:
