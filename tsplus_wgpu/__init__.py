@@ -35,7 +35,7 @@ _LAZY = {
     "export": ".io.export", "load_run": ".apps.runs", "read_mesh": ".io.export", "ExportError": ".io.export",
     "UserError": ".errors",
     "clip_from_camera": ".render.mesh_renderer", "load_wgsl": ".gpu.wgsl",
-    "MeshCollider": ".apps.collider",
+    "MeshCollider": ".apps.collider", "find_placement": ".apps.placement", "PlacementError": ".apps.placement",
     "estimate_up": ".data.upright", "engine_rotation": ".data.upright",
 }
 

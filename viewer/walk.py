@@ -13,6 +13,12 @@ keys) looks around, Space jumps, Shift runs; everything else goes on to the view
 
 Lengths scale with the eye height (default: the starting camera's height above the ground
 below it, else 1.6): the same walk works in metres or in a COLMAP scene's arbitrary units.
+
+A trained mesh has no ground right under its cameras (no photo sees straight down), so a walk
+started from a photo's viewpoint would fall through it. :func:`start_walk` finds the scene's
+ground from its cameras (:func:`tsplus_wgpu.find_placement`, what ``tsplus export --origin
+ground`` stands the mesh on): the eye starts at the camera that height above it, and the ground
+is also a ``floor`` under the whole mesh, stood on wherever the mesh has a hole.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ import math
 
 import numpy as np
 
-from tsplus_wgpu import Camera, MeshCollider, estimate_up
+from tsplus_wgpu import Camera, MeshCollider, PlacementError, estimate_up, find_placement
 
 def _unit(v):
     v = np.asarray(v, np.float64)
@@ -53,15 +59,18 @@ class WalkController:
         eye_height: eye above the feet (scene units); sets every other length:
             radius 0.2x, step 0.25x, head 1.1x, walk speed 0.9x per second, run 2.5x, jump 0.35x,
             gravity 9.81 / 1.6 x per second^2.
+        floor: the height (along ``up``) of a ground plane under the whole mesh, stood on where the
+            mesh has no ground (None: only the mesh).
     """
 
     LOOK_RAD_PER_PX = 0.003
     TURN_RAD_PER_S = 1.8
     MAX_PITCH = math.radians(85.0)
 
-    def __init__(self, collider, feet, forward=(1.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), eye_height=1.6):
+    def __init__(self, collider, feet, forward=(1.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), eye_height=1.6, floor=None):
         self.collider = collider if isinstance(collider, MeshCollider) else MeshCollider(collider)
         self.up = _unit(up)
+        self.floor = None if floor is None else float(floor)
         self.eye_height = float(eye_height)
         if not self.eye_height > 0:
             raise ValueError(f"eye_height: expected > 0, got {eye_height}")
@@ -94,14 +103,18 @@ class WalkController:
         self.sphere_heights = np.linspace(bottom, max(top, bottom), n)
 
     @classmethod
-    def from_camera(cls, collider, camera: Camera, up, eye_height=None):
+    def from_camera(cls, collider, camera: Camera, up, eye_height=None, ground=None):
         """Stand below ``camera``, looking where it looks. Without ``eye_height``, the eye stays at
-        the camera: the feet go on the first surface below its centre (at most the mesh's
-        height below it; else the eye height is 1.6 units, or a quarter of the mesh's height when
-        that is smaller)."""
+        the camera: the feet go on the scene's ``ground`` (a height along ``up``, also the walk's
+        floor) when it is below the camera, else on the first surface below its centre (at most
+        the mesh's height below it; else the eye height is 1.6 units, or a quarter of the mesh's
+        height when that is smaller)."""
         col = collider if isinstance(collider, MeshCollider) else MeshCollider(collider)
         up = _unit(up)
         center = camera.center
+        if ground is not None and float(center @ up) - float(ground) > 1e-9:
+            eye = float(center @ up) - float(ground) if eye_height is None else eye_height
+            return cls(col, center - up * (float(center @ up) - float(ground)), camera.R[2], up, eye, floor=ground)
         if eye_height is None:
             lo, hi = col.bounds
             tall = float(np.abs(hi - lo) @ np.abs(up))
@@ -227,6 +240,10 @@ class WalkController:
             self.feet = origin - up * float(dist[0])
             self.velocity = self.velocity - vert * up
             self.on_ground = True
+        elif self.floor is not None and vert <= 1e-9 and self.floor - float(np.dot(self.feet, up)) >= -snap:
+            self.feet = self.feet + up * (self.floor - float(np.dot(self.feet, up)))   # the floor under the holes
+            self.velocity = self.velocity - vert * up
+            self.on_ground = True
         else:
             self.on_ground = False
 
@@ -289,13 +306,26 @@ class WalkInput:
         self.jump = False
 
 
+def scene_ground(model, cameras, up):
+    """The height (along ``up``) of the ground the scene's ``cameras`` stand over in ``model``'s
+    mesh (:func:`tsplus_wgpu.find_placement`), or None: no cameras, or nothing looks like ground."""
+    if not cameras or model is None or not hasattr(model, "positions"):
+        return None
+    try:
+        return find_placement(model.positions, model.triangles, [c.center for c in cameras],
+                              [c.R[2] for c in cameras], up).ground
+    except PlacementError:
+        return None
+
+
 def start_walk(source, camera: Camera, cameras=None, collider=None, up=None):
     """A :class:`WalkInput` around a walker standing below ``camera`` in ``source``'s mesh
     (a viewer source with a ``model``), up from the scene's ``cameras`` (without them ``up``,
-    else +z)."""
+    else +z), on the ground those cameras stand over (:func:`scene_ground`) where one is found."""
     model = getattr(source, "model", None)
     if collider is None:
         if model is None or not hasattr(model, "positions"):
             raise ValueError("--walk: needs a mesh (a run folder, PLY, GLB or OBJ), not a live trainer")
         collider = MeshCollider(model)
-    return WalkInput(WalkController.from_camera(collider, camera, scene_up(cameras, up)))
+    u = scene_up(cameras, up)
+    return WalkInput(WalkController.from_camera(collider, camera, u, ground=scene_ground(model, cameras, u)))

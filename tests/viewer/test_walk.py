@@ -237,3 +237,62 @@ def test_view_walk_screenshot_headless(tmp_path, capsys):
     a, b = iio.imread(tmp_path / "walk.png"), iio.imread(tmp_path / "still.png")
     assert a.shape == (48, 64, 3)
     assert np.abs(a.astype(int) - b.astype(int)).max() <= 1
+
+
+def _orbit_capture():
+    """What a capture reconstructs: a floor only where the photos saw it (within 2 m of the
+    object in the middle), a box on it, and 12 cameras 3 m out and 1.5 m up, looking at the box:
+    no mesh at all under any camera."""
+    n = 16
+    u = np.linspace(-2.0, 2.0, n + 1)
+    x, y = np.meshgrid(u, u, indexing="ij")
+    verts = np.stack([x, y, np.zeros_like(x)], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    a = (i * (n + 1) + j).ravel()
+    faces = np.concatenate([np.stack([a, a + n + 1, a + 1], 1), np.stack([a + 1, a + n + 1, a + n + 2], 1)])
+    model = merge((verts, faces), box((-0.3, -0.3, 0.0), (0.3, 0.3, 0.6)))
+    cams = []
+    for t in np.linspace(0, 2 * np.pi, 12, endpoint=False):
+        c = np.array([3.0 * np.cos(t), 3.0 * np.sin(t), 1.5])
+        fwd = np.array([0.0, 0.0, 0.4]) - c
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross(fwd, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        m = np.eye(4)
+        m[:3, :3] = np.stack([right, np.cross(fwd, right), fwd])
+        m[:3, 3] = -m[:3, :3] @ c
+        cams.append(Camera(64, 48, 50, 50, 32, 24, m))
+    return model, cams
+
+
+def test_a_walk_from_a_photo_stands_on_the_scene_ground_where_the_mesh_has_none():
+    """Started from a photo's viewpoint, over no mesh at all (as under every camera of lund and
+    office), the walker stands on the ground the cameras stand over, its eye at the camera, and
+    walks onto the reconstructed floor without a step; with the mesh alone it fell through."""
+    from tsplus_wgpu import TriangleModel
+    (verts, faces), cams = _orbit_capture()
+    model = TriangleModel(verts, faces, np.zeros((len(verts), 1, 3)), np.ones(len(verts)))
+
+    class Source:
+        pass
+    src = Source()
+    src.model = model
+    assert W.scene_ground(model, cams, [0, 0, 1]) == pytest.approx(0.0, abs=1e-12)
+    inp = W.start_walk(src, cams[0], cams)
+    w = inp.walker
+    assert w.floor == pytest.approx(0.0, abs=1e-12) and w.eye_height == pytest.approx(1.5)
+    for _ in range(60):
+        w.step(1 / 30)
+    assert w.on_ground and w.feet[2] == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(w.eye, cams[0].center, atol=1e-9)          # the photo's own viewpoint
+    for _ in range(45):                                                     # 1.5 s towards the box
+        w.step(1 / 30, forward=1.0)
+        assert w.feet[2] == pytest.approx(0.0, abs=1e-9)
+    assert np.linalg.norm(w.feet[:2]) < 2.0                                 # on the reconstructed floor
+    old = W.WalkController.from_camera(MeshCollider(model), cams[0], [0, 0, 1])   # the mesh alone: it falls
+    stood = []                                                              # out of the world, again and again
+    for _ in range(60):
+        old.step(1 / 30)
+        stood.append(old.on_ground)
+    assert not any(stood) and old.floor is None
+    assert W.scene_ground(model, [], [0, 0, 1]) is None                     # no cameras: the mesh alone
