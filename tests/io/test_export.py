@@ -51,9 +51,9 @@ def test_export_load_render_equals_pre_export_render(model_cam, mr, tmp_path, fm
     assert back.num_vertices == model.num_vertices and back.num_triangles == model.num_triangles
     t = trimesh.load(path, force="mesh", process=False)
     assert len(t.vertices) == model.num_vertices and len(t.faces) == model.num_triangles
-    # GLB/OBJ colours are uint8: the pre-export render of those colours is the reference
-    # (the PLY gives the SH back, so its DC colour is exact)
-    col8 = dc_colors(model) if fmt == "ply" else to_uint8(dc_colors(model)) / 255.0
+    # OBJ colours are uint8: the pre-export render of those colours is the reference (the PLY gives
+    # the SH back, so its DC colour is exact; the GLB's linear floats come back to sRGB within 1e-7)
+    col8 = dc_colors(model) if fmt in ("ply", "glb") else to_uint8(dc_colors(model)) / 255.0
     before = mr.render((model.positions, model.triangles, col8), cam).image
     after = mr.render((back.positions, back.triangles, dc_colors(back)), cam).image
     np.testing.assert_allclose(after, before, atol=1e-6)
@@ -90,6 +90,38 @@ def test_glb_passes_the_khronos_validator(model_cam, tmp_path):
         assert report["issues"]["numErrors"] == 0, report["issues"]["messages"]
         assert report["info"]["totalTriangleCount"] == model.num_triangles
         assert report["info"]["totalVertexCount"] == model.num_vertices
+
+
+def test_glb_is_what_an_engine_draws_as_the_photos_show(model_cam, tmp_path):
+    """One unlit, double-sided, non-metallic material (glTF's default is single-sided and metallic,
+    and the trained triangles' winding is arbitrary), and COLOR_0 in linear light as 32-bit floats
+    (the specification's colour space; 8-bit linear would band the darks), read back into sRGB."""
+    from tsplus_wgpu.io.gltf import glb_colors, linear_to_srgb, srgb_to_linear
+    model, _ = model_cam
+    path = export(model, tmp_path / "m.glb")
+    data = path.read_bytes()
+    tree = json.loads(data[20:20 + int.from_bytes(data[12:16], "little")])
+    (mat,) = tree["materials"]
+    assert mat["doubleSided"] is True and "KHR_materials_unlit" in mat["extensions"]
+    assert mat["pbrMetallicRoughness"]["metallicFactor"] == 0.0 and "KHR_materials_unlit" in tree["extensionsUsed"]
+    prim = tree["meshes"][0]["primitives"][0]
+    assert prim["material"] == 0
+    acc = tree["accessors"][prim["attributes"]["COLOR_0"]]
+    assert acc["componentType"] == 5126 and acc["type"] == "VEC3"
+    view = tree["bufferViews"][acc["bufferView"]]                         # the bytes an engine reads
+    at = 20 + int.from_bytes(data[12:16], "little") + 8 + view.get("byteOffset", 0)
+    lin = np.frombuffer(data, "<f4", 3 * acc["count"], at).reshape(-1, 3).astype(np.float64)
+    srgb = dc_colors(model)
+    np.testing.assert_allclose(lin, srgb_to_linear(srgb), atol=1e-7)
+    assert np.abs(lin - srgb).max() > 0.05                               # not the sRGB values written as they are
+    np.testing.assert_allclose(glb_colors(data), srgb, atol=1e-6)        # ours: back into sRGB
+    np.testing.assert_allclose(linear_to_srgb(srgb_to_linear(srgb)), srgb, atol=1e-12)
+    other = tmp_path / "other.glb"                                       # another program's 8-bit COLOR_0
+    rgba = np.tile(np.array([[128, 10, 255, 255]], np.uint8), (len(model.positions), 1))
+    trimesh.Trimesh(model.positions, model.triangles, vertex_colors=rgba, process=False).export(other)
+    got = glb_colors(other.read_bytes())
+    np.testing.assert_allclose(got[0], linear_to_srgb(np.array([128, 10, 255]) / 255.0), atol=1e-9)
+    assert glb_colors(b"not a glb at all") is None
 
 
 def test_connectivity_report():

@@ -8,7 +8,8 @@ alpha`` uint8 (the baked colour), ``f_dc_0..2`` and ``f_rest_0..3(K-1)-1`` float
 ``opacity`` float32 (activated, in [0, 1]); faces ``vertex_indices`` (uchar count, int32).
 A float32-valued model (as the trainer's) round-trips bit for bit.
 
-GLB: glTF 2.0 with ``POSITION`` and ``COLOR_0``. ``rotation`` (a 3x3 rotation, e.g.
+GLB: glTF 2.0 with ``POSITION`` and ``COLOR_0`` (linear floats), one unlit, double-sided
+material (:mod:`.gltf` says why). ``rotation`` (a 3x3 rotation, e.g.
 :func:`~tsplus_wgpu.data.upright.engine_rotation`: the cameras' up to +Y) turns the world into an
 engine's frame (a 4x4 similarity, :func:`~tsplus_wgpu.apps.placement.engine_frame`, also moves the
 origin onto the ground and scales the lengths); ``y_up`` is the fixed one for worlds whose -y is up (OpenCV's y down, z forward),
@@ -208,12 +209,12 @@ def _record(rot) -> str:
 
 
 def encode_glb(positions, triangles, colors, y_up=False, rotation=None) -> bytes:
+    """The GLB an engine reads (:mod:`.gltf`: unlit, double-sided, linear ``COLOR_0``), in the
+    frame ``rotation`` (or ``y_up``), which is recorded in ``asset.extras``."""
+    from .gltf import encode_glb as glb  # noqa: PLC0415
     rot = _rotation(y_up, rotation)
-    mesh = _trimesh(_placed(positions, rot).astype(np.float32), triangles, colors)
-
-    def record(tree):
-        tree.setdefault("asset", {}).setdefault("extras", {})[FRAME_KEY] = _recorded(rot).tolist()
-    return mesh.export(file_type="glb", tree_postprocessor=None if rot is None else record)
+    extras = None if rot is None else {FRAME_KEY: _recorded(rot).tolist()}
+    return glb(_placed(positions, rot), triangles, colors, extras)
 
 
 def encode_obj(positions, triangles, colors, y_up=False, rotation=None) -> bytes:
@@ -408,6 +409,14 @@ def read_mesh(path) -> TriangleModel:
             col = np.asarray(vc, np.float64)[:, :3] / 255.0
     except Exception:
         pass
+    if Path(path).suffix.lower() == ".glb":         # COLOR_0 is linear light: read it as such, into sRGB
+        from .gltf import glb_colors  # noqa: PLC0415
+        try:
+            lin = glb_colors(Path(path).read_bytes())
+        except OSError:
+            lin = None
+        if lin is not None and len(lin) == len(pos):
+            col = lin
     try:
         return TriangleModel(pos, faces, ((col - 0.5) / SH_C0)[:, None, :], np.ones(len(pos)))
     except ValueError as exc:                   # NaN vertices, indices out of range, ...
