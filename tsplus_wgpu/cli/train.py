@@ -286,6 +286,10 @@ def _finish(trainer, scene, out, ckpt, psnr0):
           f"cameras' path); vertex colours {colours}")
     if fin.get("detail") is not None:
         print(detail_line(fin["detail"]))
+    if fin.get("facing"):
+        f = fin["facing"]
+        print(f"winding: {f['turned']:,} of {f['triangles']:,} triangles turned to face the training views that draw "
+              f"them (their pixels drawn from the front: {100 * f['front_before']:.0f} % -> {100 * f['front_after']:.1f} %)")
     trainer.save_checkpoint(ckpt)
     soft_psnr, soft_ssim, _ = trainer.evaluate()
     views = list(scene.test_indices or trainer.train_views)
@@ -303,7 +307,7 @@ def _finish(trainer, scene, out, ckpt, psnr0):
                    model_vertices=trainer.n, model_triangles=trainer.m, train_seconds=trainer.elapsed,
                    iterations_per_s=trainer.iteration / max(trainer.elapsed, 1e-9),
                    shards_removed=int(fin.get("shards", 0)), path_floaters_removed=int(fin.get("floaters", 0)),
-                   color_detail=fin.get("detail"), upright=_upright(scene),
+                   color_detail=fin.get("detail"), facing=fin.get("facing"), upright=_upright(scene),
                    scene_warnings=[str(w) for w in getattr(scene, "warnings", None) or ()])
     write_json(out / "metrics.json", metrics)
     for v, img in zip(views[:4], imgs[:4]):

@@ -60,7 +60,48 @@ def final_mesh(trainer):
     pos_frame, pos_world, tris, colors, _ = mesh
     if cfg.color_detail and cfg.mesh_colors == "fit" and len(tris):
         pos_frame, pos_world, tris, colors = detailed(t, pos_frame, pos_world, tris, colors)
+    tris, t.final_info["facing"] = facing_views(t, pos_frame, tris)
     return pos_world, tris, colors
+
+
+def facing_views(trainer, pos_frame, tris):
+    """``(triangles, info)``: each triangle's winding turned so that its front (counter-clockwise
+    corners, the right-hand normal) faces the training views that draw it, by pixels drawn from
+    the front against from behind (the id pass, as the shards'); a triangle no view draws faces
+    its nearest training camera. The trained triangles' winding is arbitrary (a Delaunay
+    tetrahedralisation's faces), so an engine or format that culls back faces (an OBJ, a
+    single-sided material) dropped about half of them. ``info``: the share of drawn pixels seen
+    from the front before and after, and how many triangles were turned."""
+    from ..render.mesh_fit import id_mesh, triangle_ids
+    t = trainer
+    tris = np.asarray(tris, np.int64)
+    if not len(tris):
+        return tris, None
+    p = np.asarray(pos_frame, np.float64)
+    a, b, c = p[tris[:, 0]], p[tris[:, 1]], p[tris[:, 2]]
+    normal, centre = np.cross(b - a, c - a), (a + b + c) / 3.0
+    cams = [t.scene.cameras[v] for v in t.train_views]
+    front, back = np.zeros(len(tris)), np.zeros(len(tris))
+    ids_mesh = id_mesh(t.mesh_renderer, p, tris)
+    for cam in cams:
+        ids = triangle_ids(t.mesh_renderer, p, tris, cam, t.config.near, ids_mesh)
+        seen = ids[ids >= 0]
+        side = np.einsum("ij,ij->i", normal[seen], cam.center - centre[seen])
+        front += np.bincount(seen, weights=side > 0, minlength=len(tris))
+        back += np.bincount(seen, weights=side < 0, minlength=len(tris))
+    drawn = float((front + back).sum())
+    vote = front - back
+    unseen = vote == 0
+    if unseen.any():                                   # no view draws it (or as often from each side)
+        centers = np.array([cam.center for cam in cams])
+        near = np.argmin(((centre[unseen, None, :] - centers[None]) ** 2).sum(-1), axis=1)
+        vote[unseen] = np.sign(np.einsum("ij,ij->i", normal[unseen], centers[near] - centre[unseen]))
+    turn = vote < 0
+    out = tris.copy()
+    out[turn] = out[turn][:, [0, 2, 1]]
+    share = (lambda x: round(float(x) / drawn, 4) if drawn else 1.0)  # noqa: E731
+    return out, dict(front_before=share(front.sum()), front_after=share(np.maximum(front, back).sum()),
+                     turned=int(turn.sum()), triangles=len(tris))
 
 
 def cleanup_mask(trainer):
