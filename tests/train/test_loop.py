@@ -136,6 +136,8 @@ def test_cli_train_end_to_end(tmp_path):
     assert metrics["mesh_psnr"] > 10 and metrics["iterations"] == 16
     np.testing.assert_allclose(metrics["upright"]["up"], [0, 0, 1], atol=1e-6)   # the procedural world: z up
     assert metrics["upright"]["cameras"] == 8
+    f = metrics["facing"]                                   # the winding turned to the views that draw it
+    assert f["triangles"] == metrics["mesh_triangles"] and f["front_after"] > 0.95 and f["front_after"] >= f["front_before"]
     # resuming a finished run needs --overwrite; then it is a no-op that re-exports
     r = _cli("train", "procedural:tiny", "--out", out, "--preset", "quick", "--iterations", 16, "--no-progress",
              "--resume")
