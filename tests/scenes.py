@@ -90,3 +90,13 @@ def child_env(repo, **extra):
     ``PYTHONPATH`` (which may be where wgpu and the other packages are), plus ``extra``."""
     path = os.pathsep.join(p for p in (str(repo), os.environ.get("PYTHONPATH", "")) if p)
     return dict(os.environ, **extra, PYTHONPATH=path)
+
+
+def merge_meshes(*parts):
+    """One ``(vertices, faces)`` of several, each part's faces moved past the vertices before it."""
+    vs, fs, off = [], [], 0
+    for pv, pf in parts:
+        vs.append(np.asarray(pv))
+        fs.append(np.asarray(pf) + off)
+        off += len(pv)
+    return np.concatenate(vs), np.concatenate(fs)

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from scenes import merge_meshes as _join
 
 from tsplus_wgpu.apps.placement import PlacementError, engine_frame, find_placement, flat_middle
 from tsplus_wgpu.apps.runs import load_run
@@ -31,15 +32,6 @@ def _wall(rng, x0, half=3.0, top=3.0, n=12):
     v, f = _floor(rng, 0.0, half=half, n=n)
     v = np.stack([np.full(len(v), x0), v[:, 1], (v[:, 0] + half) * top / (2 * half)], 1)
     return v, f
-
-
-def _join(*parts):
-    vs, fs, off = [], [], 0
-    for v, f in parts:
-        vs.append(v)
-        fs.append(f + off)
-        off += len(v)
-    return np.concatenate(vs), np.concatenate(fs)
 
 
 def _orbit(rng, n=24, target=(0.7, -0.4), radius=2.5):

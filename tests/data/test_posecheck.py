@@ -134,6 +134,16 @@ def _turned(cam, degrees):
     return Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, w2c)
 
 
+def _one_tilted(tmp_path, small, index):
+    """``small`` written again as LLFF with camera ``index`` tilted by 8 degrees, and loaded."""
+    from tests.data.test_formats import write_llff
+    cams = list(small.cameras)
+    cams[index] = _turned(cams[index], 8.0)
+    small.cameras = cams
+    write_llff(tmp_path / "bad", small)
+    return load_scene(tmp_path / "bad", points="triangulate", cache_dir=tmp_path / "cache")
+
+
 @pytest.mark.slow
 def test_a_photo_with_a_wrong_pose_is_left_out_of_training(tmp_path):
     """The small procedural scene written as LLFF, one training camera tilted by 8 degrees in the
@@ -146,11 +156,7 @@ def test_a_photo_with_a_wrong_pose_is_left_out_of_training(tmp_path):
     assert not any("pose disagrees" in w for w in good.warnings)
     assert len(good.train_indices) + len(good.test_indices) == len(good.cameras)
     wrong = good.train_indices[12]                 # a photo with enough matched pairs to be judged
-    cams = list(small.cameras)
-    cams[wrong] = _turned(cams[wrong], 8.0)
-    small.cameras = cams
-    write_llff(tmp_path / "bad", small)
-    bad = load_scene(tmp_path / "bad", points="triangulate", cache_dir=tmp_path / "cache")
+    bad = _one_tilted(tmp_path, small, wrong)
     said = [w for w in bad.warnings if "pose disagrees" in w]
     assert len(said) == 1 and said[0].startswith(bad.image_names[wrong] + ":"), bad.warnings
     assert bad.train_indices == [i for i in good.train_indices if i != wrong]
@@ -184,11 +190,7 @@ def test_a_held_out_photo_with_a_wrong_pose_is_left_out_of_the_evaluation(tmp_pa
     with np.load(entry / H.RESULT) as z:                       # every held-out photo judged, all right
         assert len(z["errors"]) == len(good.test_indices) and np.all(np.isfinite(z["errors"]))
     wrong = good.test_indices[1]
-    cams = list(small.cameras)
-    cams[wrong] = _turned(cams[wrong], 8.0)
-    small.cameras = cams
-    write_llff(tmp_path / "bad", small)
-    bad = load_scene(tmp_path / "bad", points="triangulate", cache_dir=tmp_path / "cache")
+    bad = _one_tilted(tmp_path, small, wrong)
     said = [w for w in bad.warnings if "held-out photo" in w]
     assert len(said) == 1 and said[0].startswith(bad.image_names[wrong] + ":"), bad.warnings
     assert "left out of the evaluation" in said[0]

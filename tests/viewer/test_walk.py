@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from scenes import merge_meshes as merge
 
 from tsplus_wgpu import Camera, Renderer
 from tsplus_wgpu.apps.physics import MeshCollider
@@ -28,15 +29,6 @@ def box(lo, hi):
     f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
                   [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
     return c, f
-
-
-def merge(*parts):
-    vs, fs, off = [], [], 0
-    for pv, pf in parts:
-        vs.append(pv)
-        fs.append(pf + off)
-        off += len(pv)
-    return np.concatenate(vs), np.concatenate(fs)
 
 
 @pytest.fixture(scope="module")
