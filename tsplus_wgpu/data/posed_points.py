@@ -114,8 +114,9 @@ def _check_held_out(specs, use, test_idx, background, info, progress, warnings, 
     train = [use[k] for k in range(len(use)) if k not in off]
     try:
         errors = held_out_errors(work, specs, train, test_idx, background, triangulation_key, progress)
-    except (RuntimeError, OSError, ValueError) as exc:
-        warnings.append(f"the held-out photos' poses could not be checked ({str(exc).splitlines()[0]})")
+    except Exception as exc:        # pycolmap, a full disk: a warning (Ctrl-C and signals still stop it)
+        why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        warnings.append(f"the held-out photos' poses could not be checked ({why})")
         return
     for k in disagreeing_held_out(errors, typical):
         warnings.append(f"{specs[test_idx[k]].name}: a held-out photo whose pose disagrees with its matches to the "
