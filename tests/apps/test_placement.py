@@ -159,7 +159,7 @@ def test_the_procedural_room_in_metres_stands_on_its_floor(tmp_path, capsys):
     assert np.linalg.norm(placed[floor][:, [0, 2]].mean(0)) < 1.0                 # the room round the origin
     back, _ = load_run(out)
     np.testing.assert_allclose(back.positions, model.positions, atol=1e-5)
-    assert main(["export", str(run), "--out", str(out), "--scale", "1000"]) == 0   # millimetres, no turn
+    assert main(["export", str(run), "--out", str(out), "--scale", "1000", "--world-frame"]) == 0   # mm, no turn
     np.testing.assert_allclose(trimesh.load(out, force="mesh", process=False).vertices, 1000 * model.positions,
                                rtol=1e-6, atol=1e-3)
 

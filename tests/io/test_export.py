@@ -204,8 +204,14 @@ def test_y_up_stands_a_run_on_its_cameras_up(model_cam, tmp_path, capsys):
     assert "the cameras' up" in printed and "rms roll 2.0 deg" in printed
     pos, printed = glb("--y-up", "--up-from", "world")                  # the fixed flip of y-down worlds
     np.testing.assert_allclose(pos, model.positions * [1, -1, -1], atol=2e-6)
-    pos, _ = glb()                                                      # as the world has it
+    pos, _ = glb("--world-frame")                                       # as the world has it
     np.testing.assert_allclose(pos, model.positions, atol=2e-6)
+    pos, printed = glb()                                                # a GLB is +Y up by default: glTF's convention
+    np.testing.assert_allclose(pos, model.positions @ a.T, atol=2e-6)
+    assert "the cameras' up" in printed
+    assert main(["export", str(run), "--out", str(tmp_path / "o.glb"), "--world-frame", "--y-up"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--world-frame" in err
     (run / "metrics.json").unlink()                                     # nothing recorded: the run's scene's cameras
     (run / "config.json").write_text(json.dumps({"extra": {"scene": "procedural:tiny", "downscale": 1}}))
     pos, printed = glb("--y-up")
@@ -215,6 +221,9 @@ def test_y_up_stands_a_run_on_its_cameras_up(model_cam, tmp_path, capsys):
     pos, printed = glb("--y-up")
     np.testing.assert_allclose(pos, model.positions * [1, -1, -1], atol=2e-6)
     assert "no cameras known" in printed
+    pos, printed = glb()                                                # by default: the world's frame, and why
+    np.testing.assert_allclose(pos, model.positions, atol=2e-6)
+    assert "the scene's up is unknown" in printed
     for bad in ('{"upright": {"up": "north", "forward": [0, 0]}}', '[1, 2]', '{"upright": {"up": [0, 0, 0]}}'):
         (run / "metrics.json").write_text(bad)                          # a damaged record is not trusted
         pos, printed = glb("--y-up")
@@ -222,7 +231,7 @@ def test_y_up_stands_a_run_on_its_cameras_up(model_cam, tmp_path, capsys):
     (run / "config.json").write_text(json.dumps({"extra": {"scene": str(tmp_path / "gone")}}))
     pos, printed = glb("--y-up")                                        # a scene that moved: a warning line
     np.testing.assert_allclose(pos, model.positions * [1, -1, -1], atol=2e-6)
-    assert glb.err.count("\n") == 1 and "warning: --y-up: the cameras of" in glb.err and "gone" in glb.err
+    assert glb.err.count("\n") == 1 and "warning: the cameras of" in glb.err and "gone" in glb.err
 
 
 @pytest.mark.parametrize("name", ["lund", "fox"])

@@ -28,6 +28,9 @@ def add_parser(sub):
                    help="stand the mesh upright for an engine: +Y is the scene's up, estimated from its cameras "
                         "(recorded by `tsplus train`, else from the run's scene or --scene), -Z the cameras' mean "
                         "viewing direction; a rotation, so lengths and the world's units are kept")
+    p.add_argument("--world-frame", action="store_true",
+                   help="keep the world's own frame; without it a GLB is written +Y up (glTF's convention) whenever "
+                        "the scene's up is known, as with --y-up")
     p.add_argument("--up-from", choices=("cameras", "world"), default="cameras",
                    help="with --y-up: cameras (default) or world (the world's -y is up, as OpenCV's y-down worlds "
                         "have it: (x, -y, -z))")
@@ -104,36 +107,42 @@ def _scene_cameras(args, info):
         if _placing(args):
             raise ExportError(f"{_placing(args)}: the cameras of {scene_arg} could not be read ({exc}); give "
                               "--scene") from None
-        print(f"warning: --y-up: the cameras of {scene_arg} could not be read ({exc}); written with the "
-              f"world's -y up", file=sys.stderr)
+        print(f"warning: the cameras of {scene_arg} could not be read ({exc}), so the scene's up is unknown",
+              file=sys.stderr)
         return None, None
 
 
-def _engine_frame(args, info, cams):
+def _engine_frame(args, info, cams, auto=False):
     """``(rotation or None, words)``: how ``--y-up`` turns this run's world into an engine's.
-    ``cams``: a callable giving :func:`_scene_cameras`'s pair (read once, when needed)."""
+    ``cams``: a callable giving :func:`_scene_cameras`'s pair (read once, when needed). ``auto``:
+    a GLB without ``--y-up`` or ``--world-frame``, turned only when the scene's up is known."""
     from ..data.upright import Upright, engine_rotation, estimate_up, files_upright
-    if not args.y_up:
+    if not args.y_up and not auto:
         return None, ""
-    if args.up_from == "world":
+    if args.up_from == "world" and args.y_up:
         return Y_UP, "y up: the world's -y"
     up = Upright.from_dict(info["upright"]) if isinstance(info.get("upright"), dict) else None
     if up is None:
         cameras, files = cams()
         if cameras is not None:
             up = estimate_up(cameras) if files is None else files_upright(cameras, files)
+    if up is None and auto:
+        return None, "the world's own frame: the scene's up is unknown (give --scene, or --y-up for the world's -y)"
     if up is None:
         return Y_UP, "y up: the world's -y (no cameras known; give --scene for the cameras' up)"
     counts = f"; {up.cameras} cameras, rms roll {up.rms_roll_deg:.1f} deg" if up.cameras else ""
     return engine_rotation(up), f"y up: the cameras' up, from {up.how}{counts}"
 
 
-def _check_lengths(args):
+def _check_frame_flags(args):
     for flag, v in (("--scale", args.scale), ("--camera-height", args.camera_height)):
         if v is not None and not (np.isfinite(v) and v > 0):
             raise ExportError(f"{flag} {v:g}: expected a positive length factor")
     if args.scale is not None and args.camera_height is not None:
         raise ExportError("--scale and --camera-height both set the size; give one")
+    if args.world_frame and (args.y_up or args.origin != "world" or args.camera_height is not None):
+        raise ExportError("--world-frame keeps the world's frame, which --y-up, --origin ground and --camera-height "
+                          "change; give one or the other")
     if args.origin != "world" or args.camera_height is not None:
         args.y_up = True
 
@@ -186,14 +195,14 @@ def run(args):
         colors, source = None, "SH DC"
     if args.bake in ("fit", "views"):
         colors, source = _bake(args, model, info)
-    _check_lengths(args)
+    _check_frame_flags(args)
     got = []
 
     def cams():
         if not got:
             got.append(_scene_cameras(args, info))
         return got[0]
-    rotation, frame = _engine_frame(args, info, cams)
+    rotation, frame = _engine_frame(args, info, cams, auto=fmt == "glb" and not args.y_up and not args.world_frame)
     rotation, placed = _placement(args, model, rotation, cams)
     export(model, out, fmt=fmt, colors=colors, rotation=rotation)
     print(f"{info.get('from', 'model')}: {model.num_vertices} vertices, {model.num_triangles} triangles, SH "
