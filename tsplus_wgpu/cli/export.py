@@ -135,6 +135,8 @@ def _engine_frame(args, info, cams, auto=False):
 
 
 def _check_frame_flags(args):
+    """One-line errors for lengths that are not positive and for flags that contradict each other;
+    ``--origin ground`` and ``--camera-height`` turn ``--y-up`` on."""
     for flag, v in (("--scale", args.scale), ("--camera-height", args.camera_height)):
         if v is not None and not (np.isfinite(v) and v > 0):
             raise ExportError(f"{flag} {v:g}: expected a positive length factor")
