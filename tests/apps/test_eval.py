@@ -151,3 +151,32 @@ def test_poisson_normals_face_the_cameras_that_see_them():
     n = oriented_normals(pts, cams)
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-9)
     assert (n[:, 2] > 0.9).all()
+
+
+def test_eval_of_a_run_holds_out_what_the_run_held_out(gt_mesh, tmp_path, capsys):
+    """A run that left a held-out photo out of its evaluation (its pose disagreed with its matches)
+    is evaluated on the same views by `tsplus eval`, whose load of the scene need not check poses;
+    on another scene, or with the run's list whole, the scene's own held-out views stand."""
+    from tsplus_wgpu.data import load_scene_arg
+    test = list(load_scene_arg("procedural:small").test_indices)
+    assert len(test) >= 3
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "mesh.ply").write_bytes(gt_mesh.read_bytes())
+    (run / "config.json").write_text(json.dumps({"extra": {"scene": "procedural:small", "downscale": 1}}))
+    said = "0008.png: a held-out photo whose pose disagrees with its matches to the training photos (...)"
+    (run / "metrics.json").write_text(json.dumps({"held_out_views": test[:1] + test[2:], "scene_warnings": [said],
+                                                  "held_out_are_training_views": False}))
+
+    def evaluate(*extra):
+        out = tmp_path / f"ev{len(extra)}"
+        assert main(["eval", str(run), *extra, "--no-splat", "--supersample", "1", "--out", str(out)]) == 0
+        return [r["view"] for r in json.loads((out / "metrics.json").read_text())["views"]], capsys.readouterr().out
+    views, printed = evaluate()
+    assert views == test[:1] + test[2:]
+    assert f"held-out views as the run evaluated them: {len(test) - 1} of {len(test)}" in printed and said in printed
+    views, _ = evaluate("procedural:tiny")                                    # another scene: its own views
+    assert views == list(load_scene_arg("procedural:tiny").test_indices)
+    (run / "metrics.json").write_text(json.dumps({"held_out_views": test, "held_out_are_training_views": False}))
+    views, printed = evaluate()
+    assert views == test and "as the run evaluated" not in printed

@@ -4,6 +4,7 @@ Poisson baseline."""
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from pathlib import Path
@@ -103,6 +104,27 @@ def _run_scene(args, run_arg, info):
     return str(scene), downscale, images
 
 
+def _as_the_run_held_out(run_arg, info, scene_arg, views):
+    """``(views, notes)``: the held-out ``views`` less those the run left out of its own evaluation
+    (a held-out photo whose pose disagrees with its matches, :mod:`~tsplus_wgpu.data.heldout_poses`),
+    with the run's warning lines about them. That check runs only where the scene's points are
+    triangulated, which `tsplus train` does and this load of a COLMAP scene with points does not,
+    so without this the two figures of one run could differ. Only for the run's own scene."""
+    if run_arg is None or not Path(run_arg).is_dir() or not info.get("scene"):
+        return views, []
+    same = str(info["scene"]) == str(scene_arg) or (Path(str(info["scene"])).exists() and Path(str(scene_arg)).exists()
+                                                   and Path(str(info["scene"])).resolve() == Path(str(scene_arg)).resolve())
+    try:
+        m = json.loads((Path(run_arg) / "metrics.json").read_text())
+        rec = {int(v) for v in m["held_out_views"]}
+    except (OSError, ValueError, KeyError, TypeError):
+        return views, []
+    if not same or m.get("held_out_are_training_views") or not rec < set(views):
+        return views, []
+    notes = [str(w) for w in m.get("scene_warnings", []) if "held-out photo" in str(w)]
+    return [v for v in views if v in rec], notes
+
+
 def _out_folder(args, run_arg):
     """The output folder (created, writable): --out, RUN/eval, or runs/eval-<name>."""
     if args.out:
@@ -155,6 +177,12 @@ def run(args):
         raise ExportError(f"{run_arg or 'baseline'}: the mesh has no triangles; nothing to evaluate")
     if args.views == "test":
         views = list(scene.test_indices) or list(scene.train_indices)
+        if run_arg is not None and not args.baseline:
+            kept, notes = _as_the_run_held_out(run_arg, info, scene_arg, views)
+            if len(kept) < len(views):
+                print(f"held-out views as the run evaluated them: {len(kept)} of {len(views)}; it left out: "
+                      + "; ".join(notes or ["(its metrics.json does not say why)"]))
+                views = kept
     elif args.views == "train":
         views = list(scene.train_indices)
     else:
