@@ -135,9 +135,10 @@ def test_mask_files(tmp_path):
 # ----------------------------------------------------------------------------- the command
 
 def _tiny_run(tmp_path, model):
+    """A run folder of ``model`` whose vertex colours (fitted, in a real run) are not its SH DC."""
     run = tmp_path / "run"
     run.mkdir()
-    export(model, run / "mesh.ply")
+    export(model, run / "mesh.ply", colors=np.random.default_rng(5).random((model.num_vertices, 3)))
     (run / "config.json").write_text(json.dumps({"extra": {"scene": "procedural:tiny", "downscale": 1}}))
     return run
 
@@ -176,6 +177,19 @@ def test_cli_end_to_end(world, tmp_path, capsys):
     got = _tri_keys(obj)
     assert len(got & gt) >= 0.9 * len(got) and len(got & gt) >= 40
     assert len(gt & _tri_keys(rest)) <= len(gt) - len(got & gt)
+    # the parts keep the run's own vertex colours (not SH DC), and the GLB is +Y up like `tsplus export`'s
+    from tsplus_wgpu.apps.runs import load_run
+    from tsplus_wgpu.data.upright import engine_rotation, scene_upright
+    from tsplus_wgpu.io.export import file_frame, read_ply_colors
+    run_col = read_ply_colors(run / "mesh.ply")
+    keys = {tuple(p): c for p, c in zip(np.float32(mesh.positions).tolist(), run_col)}
+    obj_col = read_ply_colors(run / "object.ply")
+    assert np.array_equal(obj_col, np.array([keys[tuple(p)] for p in np.float32(obj.positions).tolist()]))
+    np.testing.assert_allclose(file_frame(run / "object.glb")[:3, :3], engine_rotation(scene_upright(scene)),
+                               atol=1e-12)
+    back, info = load_run(run / "object.glb")
+    np.testing.assert_allclose(back.positions, obj.positions, atol=1e-5)
+    assert "+Y up" in text or "+Y up" in capsys.readouterr().out
 
 
 def test_cli_mesh_file_with_scene_and_out(world, tmp_path, capsys):

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from ..apps.select import find_masks, read_mask, select_triangles, split_model
 from ..errors import UserError
 from ..io.atomic import write_json
@@ -36,6 +38,28 @@ def add_parser(sub):
     add_images_arg(p, help="image folder inside the scene (default: the run's, else images)")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
     return p
+
+
+def _write_parts(out, model, info, scene, parts):
+    """Each part as PLY and GLB with the run's own vertex colours (what ``tsplus export`` writes;
+    SH DC where the mesh has none); the GLB +Y up on the scene's cameras (glTF's convention, as
+    ``tsplus export`` writes a GLB), the PLY in the world's frame. Returns the paths written."""
+    from ..data.upright import engine_rotation, scene_upright
+    colors = info.get("colors")
+    colors = colors if colors is not None and len(colors) == model.num_vertices else None
+    up = scene_upright(scene)
+    rot = None if up is None else engine_rotation(up)
+    written = []
+    for (stem, part), mask in parts:
+        if part.num_triangles == 0:
+            print(f"note: {stem} has no triangles; not written")
+            continue
+        col = None if colors is None else np.asarray(colors)[np.unique(model.triangles[mask])]   # submesh's order
+        for fmt in ("ply", "glb"):
+            written.append(export(part, out / f"{stem}.{fmt}", fmt, colors=col, rotation=rot if fmt == "glb" else None))
+    if rot is not None and written:
+        print("GLB files +Y up on the cameras' up (glTF's convention), PLY files in the world's frame")
+    return written
 
 
 def run(args):
@@ -82,13 +106,8 @@ def run(args):
         raise UserError(f"--masks {mask_dir}: no triangle is under the masks in >= {args.vote:g} of the views that "
                         f"see it; check the masks (non-zero = object) or lower --vote")
     out.mkdir(parents=True, exist_ok=True)
-    written = []
-    for stem, part in (("object", obj), ("scene_without_object", rest)):
-        if part.num_triangles == 0:
-            print(f"note: {stem} has no triangles; not written")
-            continue
-        for fmt in ("ply", "glb"):
-            written.append(export(part, out / f"{stem}.{fmt}", fmt))
+    written = _write_parts(out, model, info, scene, ((("object", obj), sel.keep), (("scene_without_object", rest),
+                                                                                   ~np.asarray(sel.keep, bool))))
     report = dict(run=str(run), scene=str(scene_arg), masks=str(mask_dir), vote=args.vote,
                   views_used=[scene.image_names[i] for i in sel.views], masks_missing=missing,
                   triangles=model.num_triangles, visible=int((sel.visible > 0).sum()), selected=sel.num_selected,
