@@ -106,8 +106,8 @@ def run(args):
         raise UserError(f"--masks {mask_dir}: no triangle is under the masks in >= {args.vote:g} of the views that "
                         f"see it; check the masks (non-zero = object) or lower --vote")
     out.mkdir(parents=True, exist_ok=True)
-    written = _write_parts(out, model, info, scene, ((("object", obj), sel.keep), (("scene_without_object", rest),
-                                                                                   ~np.asarray(sel.keep, bool))))
+    keep = np.asarray(sel.keep, bool)
+    written = _write_parts(out, model, info, scene, ((("object", obj), keep), (("scene_without_object", rest), ~keep)))
     report = dict(run=str(run), scene=str(scene_arg), masks=str(mask_dir), vote=args.vote,
                   views_used=[scene.image_names[i] for i in sel.views], masks_missing=missing,
                   triangles=model.num_triangles, visible=int((sel.visible > 0).sum()), selected=sel.num_selected,
