@@ -19,7 +19,8 @@ def add_parser(sub):
     p = sub.add_parser("export", help="write a trained run (or a mesh) as PLY / GLB / OBJ",
                        description="Write RUN (a folder written by `tsplus train`, a .ply/.glb/.obj mesh or a "
                                    "checkpoint .npz) as PLY (float32 positions, uint8 RGB, full SH and opacity as "
-                                   "extra vertex properties; reads back losslessly), GLB (glTF 2.0 with COLOR_0) or "
+                                   "extra vertex properties; reads back losslessly), GLB (glTF 2.0 for an engine: +Y up when "
+                                   "the scene's up is known, one unlit double-sided material, linear COLOR_0) or "
                                    "OBJ (vertex colours). Written atomically; prints the connectivity report.")
     p.add_argument("run", help="run folder, mesh file or checkpoint")
     p.add_argument("--format", default=None, help="ply, glb or obj (default: --out's extension, else ply)")
@@ -49,7 +50,8 @@ def add_parser(sub):
                         "(least-squares fit to the training views through the depth-tested mesh) or views (photo "
                         "averaged at each vertex over the training views that see it); fit and views need the run's "
                         "scene or --scene")
-    p.add_argument("--scene", default=None, help="scene for --bake views (default: the run's)")
+    p.add_argument("--scene", default=None,
+                   help="the scene whose cameras give the up, the ground and --bake's views (default: the run's)")
     add_images_arg(p, help="image folder inside the scene for --bake views (default: the run's, else images)")
     p.add_argument("--adapter", default=None, help="GPU adapter to use (substring of its name)")
     return p
