@@ -112,9 +112,10 @@ class WalkController:
         col = collider if isinstance(collider, MeshCollider) else MeshCollider(collider)
         up = _unit(up)
         center = camera.center
-        if ground is not None and float(center @ up) - float(ground) > 1e-9:
-            eye = float(center @ up) - float(ground) if eye_height is None else eye_height
-            return cls(col, center - up * (float(center @ up) - float(ground)), camera.R[2], up, eye, floor=ground)
+        above = None if ground is None else float(center @ up) - float(ground)
+        if above is not None and above > 1e-9:
+            return cls(col, center - up * above, camera.R[2], up, above if eye_height is None else eye_height,
+                       floor=ground)
         if eye_height is None:
             lo, hi = col.bounds
             tall = float(np.abs(hi - lo) @ np.abs(up))

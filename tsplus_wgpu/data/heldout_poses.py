@@ -34,20 +34,16 @@ RESULT = "heldout.npz"
 
 def neighbours(cameras, train, test, k: int = NEIGHBOURS) -> dict:
     """``{held-out index: [training indices]}``: each held-out camera's ``k`` nearest training
-    cameras (distance over the cameras' median spacing plus twice one minus the cosine between
-    their viewing directions; cameras facing apart are never paired)."""
+    cameras, as the triangulation pairs its photos (:func:`~.sfm.neighbour_scores`; cameras facing
+    apart are never paired)."""
+    from .sfm import neighbour_scores  # noqa: PLC0415
     train = list(train)
     if not train:
         return {int(t): [] for t in test}
-    c = np.stack([cam.center for cam in cameras])
-    d = np.stack([cam.R[2] for cam in cameras])
-    gaps = np.linalg.norm(c[:, None] - c[None], axis=2)
-    spacing = float(np.median(gaps[gaps > 0])) if np.any(gaps > 0) else 1.0
+    score, cos = neighbour_scores(cameras)
     out = {}
     for t in test:
-        cos = d[train] @ d[t]
-        score = gaps[t, train] / spacing + 2.0 * (1.0 - cos)
-        order = [j for j in np.argsort(score, kind="stable") if cos[j] > 0.0][:k]
+        order = [j for j in np.argsort(score[t, train], kind="stable") if cos[t, train[j]] > 0.0][:k]
         out[int(t)] = [int(train[j]) for j in order]
     return out
 

@@ -195,15 +195,22 @@ def _match(pycolmap, db, sequential, pairs):
         pycolmap.match_image_pairs(db, matching_options=mopt, pairing_options=popt, device=pycolmap.Device.cpu)
 
 
-def _neighbour_pairs(cameras: list, names: list, k: int = 12):
-    """Image pairs for matching with known poses: each image with its k nearest cameras
-    (distance plus a penalty for different viewing directions)."""
+def neighbour_scores(cameras: list):
+    """``(score, cos)`` ``[N, N]``: how near two known cameras are for matching (their distance over
+    the cameras' median spacing plus twice one minus the cosine between their viewing directions;
+    lower is nearer) and that cosine (pairs facing apart, ``cos <= 0``, are never matched)."""
     C = np.stack([c.center for c in cameras])
     D = np.stack([c.R[2] for c in cameras])  # viewing directions
     dist = np.linalg.norm(C[:, None] - C[None], axis=2)
     scale = np.median(dist[dist > 0]) if np.any(dist > 0) else 1.0
     cosang = np.clip(D @ D.T, -1, 1)
-    score = dist / scale + 2.0 * (1 - cosang)
+    return dist / scale + 2.0 * (1 - cosang), cosang
+
+
+def _neighbour_pairs(cameras: list, names: list, k: int = 12):
+    """Image pairs for matching with known poses: each image with its k nearest cameras
+    (:func:`neighbour_scores`)."""
+    score, cosang = neighbour_scores(cameras)
     np.fill_diagonal(score, np.inf)
     pairs = set()
     for i in range(len(cameras)):

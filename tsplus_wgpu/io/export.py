@@ -234,12 +234,14 @@ def file_frame(path) -> np.ndarray | None:
     world points ``p``), or None: another program's file, or written in the world's own frame."""
     import json
     import re
+
+    from .gltf import json_chunk_length
     path = Path(path)
     try:
         with open(path, "rb") as f:
             head = f.read(1 << 16)
-        if head[:4] == b"glTF" and head[16:20] == b"JSON":
-            n = int.from_bytes(head[12:16], "little")
+        n = json_chunk_length(head)
+        if n is not None:
             with open(path, "rb") as f:
                 f.seek(20)
                 tree = json.loads(f.read(n))

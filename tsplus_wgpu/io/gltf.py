@@ -88,14 +88,23 @@ def encode_glb(positions, triangles, colors, extras=None) -> bytes:
             + struct.pack("<II", len(blob), _BIN) + blob)
 
 
+def json_chunk_length(head: bytes) -> int | None:
+    """The byte length of the JSON chunk of a GLB that starts with ``head`` (its first 20 bytes at
+    least), or None when ``head`` is not the start of a GLB."""
+    if len(head) < 20:
+        return None
+    magic, _, _ = struct.unpack_from("<III", head, 0)
+    n, kind = struct.unpack_from("<II", head, 12)
+    return n if magic == _GLB_MAGIC and kind == _JSON else None
+
+
 def glb_colors(data: bytes) -> np.ndarray | None:
     """sRGB ``[N, 3]`` of the first primitive's ``COLOR_0`` in the GLB ``data`` (linear by the
     specification; floats, normalised bytes or shorts; RGB or RGBA), or None where it has none or
     is not a GLB this reads (sparse accessors, several buffers, other component types)."""
     try:
-        magic, _, _ = struct.unpack_from("<III", data, 0)
-        n, kind = struct.unpack_from("<II", data, 12)
-        if magic != _GLB_MAGIC or kind != _JSON:
+        n = json_chunk_length(data)
+        if n is None:
             return None
         tree = json.loads(data[20:20 + n])
         at = 20 + n
