@@ -9,7 +9,8 @@ from tsplus_wgpu.train.schedules import Schedule
 #: these tests exercise the edits at the method's scaled 500-iteration interval (prune at 45, densify
 #: at 10, ...), not the quick preset's longer defaults
 SCALED_500 = dict(quick_topology_epochs=0, quick_opacity_lr_scale=1)
-from tsplus_wgpu.train.strategy.ops import choose_split, new_vertex_count, remove_unused_vertices, subdivide, triangle_areas
+from tsplus_wgpu.train.strategy.ops import (choose_split, new_vertex_count, projected_sizes, remove_unused_vertices,
+                                           subdivide, triangle_areas)
 
 
 def _valid(tris, n):
@@ -39,6 +40,43 @@ def test_subdivide_shares_midpoints_and_keeps_orientation():
     same, e0, par = subdivide(tris, np.zeros(0, np.int64), 5)
     np.testing.assert_array_equal(same, tris)
     assert len(e0) == 0
+
+
+def _plain_projected_sizes(positions, triangles, cameras, near=0.01):
+    """The reference: the whole [M, 3, 2] projection per camera, its mean and norm."""
+    p, t = np.asarray(positions, np.float64), np.asarray(triangles, np.int64)
+    out = np.zeros(len(t))
+    for cam in cameras:
+        uv, z = cam.project(p)
+        tri_uv = uv[t]
+        size = np.linalg.norm(tri_uv - tri_uv.mean(axis=1, keepdims=True), axis=2).max(axis=1)
+        out = np.where((z[t] > near).all(axis=1), np.maximum(out, size), out)
+    return out
+
+
+def test_projected_sizes_match_the_plain_loop_bit_for_bit():
+    from tsplus_wgpu.types import Camera
+    rng = np.random.default_rng(7)
+    n = 30_000
+    p = rng.normal(0, 1.5, (n, 3)).astype(np.float32)       # some behind or beside each camera
+    # 70,000 triangles (past two chunks of 32,768), a tenth of the vertices unused, a few tiny
+    t = rng.integers(0, int(0.9 * n), (70_000, 3))
+    t[:500, 1] = t[:500, 0]
+    cams = []
+    for k in range(3):
+        a = 0.7 * k
+        r = np.array([[np.cos(a), 0, -np.sin(a)], [0, 1, 0], [np.sin(a), 0, np.cos(a)]])
+        w2c = np.eye(4)
+        w2c[:3, :3], w2c[:3, 3] = r, [0.1 * k, -0.2, 2.0]
+        cams.append(Camera(320, 240, 300 + 40 * k, 300, 160, 120, w2c))
+    ref = _plain_projected_sizes(p, t, cams)
+    got = projected_sizes(p, t, cams)
+    assert 0 < np.count_nonzero(ref) < len(t)                  # some triangles count in no view
+    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(projected_sizes(p, t[:0], cams), np.zeros(0))
+    # the near plane: a triangle with one corner at z <= near counts in no view
+    near = 1.0
+    np.testing.assert_array_equal(projected_sizes(p, t, cams, near), _plain_projected_sizes(p, t, cams, near))
 
 
 def test_remove_unused_vertices_compacts():
@@ -121,9 +159,15 @@ def test_prune_moves_adam_rows_with_their_vertices(renderer, tiny):
     while t.iteration < 44:
         t.step()
     t.topology.seen = set(t.train_views)            # let the weight criterion apply
+    # 45 is a densify step too: whether the pruned model sits under the vertex cap depends on
+    # the adapter's float sums (1,310 vertices on llvmpipe, under 1,300 on an H200), so the
+    # densify half is switched off here and this test sees the prune alone
+    t.topology.densify_stopped = "off in this test"
     a = t.state_arrays()
     t.apply_topology(45)                           # a prune step, outside a step: parameters unchanged
     b = t.state_arrays()
+    rec = t.topology.events[-1]
+    assert rec["iteration"] == 45 and "split" not in rec and rec["pruned_weight"] > 0
     assert t.n < len(a["positions"])
     _valid(b["triangles"], t.n)
     key = {tuple(p): i for i, p in enumerate(a["positions"])}
