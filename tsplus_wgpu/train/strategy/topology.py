@@ -222,7 +222,6 @@ class TopologyStrategy:
         training view indices, ``cameras`` their cameras). Logs an ``event: topology`` record."""
         s = self.sched
         self.read_l1_window(it)
-        state = state.astype(np.float64)
         rec = dict(iteration=it, event="topology", vertices_before=state.n, triangles_before=state.m)
         reset = False
         if s.is_prune_step(it):
@@ -274,8 +273,9 @@ class TopologyStrategy:
             rec["shell_kept"] = int((drop & shell & ~hidden).sum())
             rec["shell_hidden"] = int(hidden.sum())
             drop = (drop & ~shell) | hidden
-        big = ops.projected_sizes(state.positions, tris, cameras, self.near) > s.prune_max_size()
-        rec["pruned_size"] = int((big & ~drop).sum())
+        big = np.zeros_like(drop)         # sized only where nothing else drops (half the triangles or less)
+        big[~drop] = ops.projected_sizes(state.positions, tris[~drop], cameras, self.near) > s.prune_max_size()
+        rec["pruned_size"] = int(big.sum())
         drop |= big
         if drop.all():        # never leave an empty model: keep the heaviest triangle
             drop[int(np.argmax(mw))] = False
