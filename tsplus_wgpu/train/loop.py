@@ -110,7 +110,11 @@ class TrainLoop:
         self.bar = None
         if self.progress:
             from tqdm import tqdm
-            self.bar = tqdm(total=self.until, initial=t.iteration, desc="train", unit="it", dynamic_ncols=True)
+            # smoothing=0: the rate and ETA are the run's mean so far. tqdm's moving average
+            # made one topology edit of a paper-scale model on an H200 (30-46 s among 20 ms
+            # steps) read as an ETA of 22 hours for a run of under 30 minutes
+            self.bar = tqdm(total=self.until, initial=t.iteration, desc="train", unit="it", dynamic_ncols=True,
+                            smoothing=0)
         try:
             self.t_last, self.it_last = time.perf_counter(), t.iteration
             t0, base_elapsed = time.perf_counter(), t.elapsed
