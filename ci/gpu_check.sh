@@ -8,7 +8,8 @@
 #   bash ci/gpu_check.sh [OUT_DIR]        (default: $OUT/gpu-check, else ./gpu-check)
 #
 # Environment: BUDGET seconds in all (default 540); TSPLUS_DATA the real scenes (office is
-# trained when it is there); PYTHON the interpreter (default: .venv/bin/python if present, else
+# trained when it is there); TSPLUS_CACHE a carried cache holding office's triangulation (its
+# tri_* entry; without it the step triangulates first and may not finish); PYTHON the interpreter (default: .venv/bin/python if present, else
 # python3); TSPLUS_ADAPTER as usual. On a bare machine that has Python and numpy but not this
 # package's other dependencies (no wgpu there), put their wheels (for that machine's Python)
 # in .whl/ and the Vulkan loader's .deb files in .gl/: they are unpacked first (the loader into
