@@ -119,6 +119,30 @@ def test_rate_estimate_reports_after_the_warm_up_and_after_the_first_prune(monke
     assert [duration_text(s) for s in (42, 900, 4 * 3600, 3 * 86400)] == ["42 s", "15 min", "4.0 h", "3.0 days"]
 
 
+def test_the_estimate_after_the_first_prune_counts_the_prunes_to_come(monkeypatch):
+    """A paper-scale run on a GPU (the H200's office at 960x540): 20 ms steps, and a first prune
+    that holds the step 40 s more. The estimate after it takes the 51 prunes still to come at
+    that cost (25,480 / 50 s + 51 x 40 s, 42 min, not the steps' 8 min); on a CPU the prune of a
+    small model costs under a second and the line is the plain one (the test above)."""
+    import time as clock
+    from types import SimpleNamespace
+
+    from tsplus_wgpu.train.callbacks import RateEstimate
+    from tsplus_wgpu.train.schedules import Schedule
+    now = [0.0]
+    monkeypatch.setattr(clock, "perf_counter", lambda: now[0])
+    sched = Schedule(total=30000)                     # prunes every 500 from 4,500: 52
+    trainer = SimpleNamespace(config=SimpleNamespace(iterations=30000, topology=True), sched=sched)
+    lines = []
+    cb = RateEstimate(report=lines.append)
+    for it in range(1, 4600):
+        now[0] += 0.02 + (40.0 if sched.is_prune_step(it) else 0.0)
+        cb.after_step(trainer, it, {})
+    assert lines == ["estimate: 29,975 iterations left at 50.0 it/s -> about 10 min (measured over steps 6-25)",
+                     "estimate after the first prune: 25,480 iterations left at 50.0 it/s and 51 more prunes at "
+                     "about 40 s each (the first one's) -> about 42 min (measured over steps 4501-4520)"]
+
+
 def test_the_first_estimate_takes_the_steps_after_the_first_prune_at_the_time_models_rate(monkeypatch):
     """With ``later_cost`` (a CPU run's time model: an iteration after the first prune costs
     0.25x one before it), the first estimate counts the 424 iterations before the prune at 450

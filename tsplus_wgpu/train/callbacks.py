@@ -48,8 +48,9 @@ class RateEstimate(TrainCallback):
     it/s -> about 15 min (measured over steps 6-25)". The first steps are the slowest of a run:
     until the first prune the whole initial Delaunay mesh is drawn (the cup: 100k triangles
     until iteration 601 of 3000, then a fraction of them). So the estimate is said once more,
-    measured over ``steps`` steps after the first prune ("estimate after the first prune: ...").
-    Later steps may still run at another rate (the supersampled last third, a model
+    measured over ``steps`` steps after the first prune ("estimate after the first prune: ..."),
+    with the prunes still to come at the first one's cost where they add a tenth or more (a
+    paper-scale model's prune is host work of many seconds). Later steps may still run at another rate (the supersampled last third, a model
     densification grew): the lines answer "minutes or days?", they are not a promise.
 
     ``later_cost`` (optional): how many times an iteration after the first prune costs one
@@ -62,17 +63,27 @@ class RateEstimate(TrainCallback):
         self.report, self.warmup, self.steps = report, max(1, int(warmup)), max(1, int(steps))
         self.later_cost = later_cost
         self.first = self.start = None
-        self.pruned_at = None          # (iteration, clock) of the first prune
+        self.pruned_at = None          # (iteration, clock, its step's seconds) of the first prune
+        self.last = None               # the clock at the last step
         self.done_after_prune = False
 
-    def _say(self, trainer, it, start, what):
+    def _say(self, trainer, it, start, what, edit_s=0.0):
         rate = self.steps / max(time.perf_counter() - start, 1e-9)
         total = int(trainer.config.iterations)
         left = total - it
         prune = self._first_prune_ahead(trainer, it) if self.later_cost and what == "estimate" else None
         if prune is None:
-            self.report(f"{what}: {left:,} iterations left at {rate:.1f} it/s -> about "
-                        f"{duration_text(left / rate)} (measured over steps {it - self.steps + 1}-{it})")
+            seconds, edits = left / rate, ""
+            # the first prune's own cost (its step less a step's time), for every prune to come,
+            # where that counts: a million-vertex model's prune held an H200 30-46 s among 20 ms steps
+            edit_s = max(0.0, edit_s - 1.0 / rate)
+            sched = getattr(trainer, "sched", None)
+            prunes = sum(1 for i in range(it + 1, total + 1) if sched.is_prune_step(i)) if edit_s >= 1.0 else 0
+            if prunes and prunes * edit_s >= 0.1 * seconds:
+                seconds += prunes * edit_s
+                edits = f" and {prunes:,} more prunes at about {duration_text(edit_s)} each (the first one's)"
+            self.report(f"{what}: {left:,} iterations left at {rate:.1f} it/s{edits} -> about "
+                        f"{duration_text(seconds)} (measured over steps {it - self.steps + 1}-{it})")
             return
         later = rate / self.later_cost
         seconds = (prune - 1 - it) / rate + (total - prune + 1) / later
@@ -93,6 +104,7 @@ class RateEstimate(TrainCallback):
     def after_step(self, trainer, it, info):
         if self.first is None:
             self.first = it
+            self.last = time.perf_counter()
         done = it - self.first + 1
         if done == self.warmup:
             self.start = time.perf_counter()
@@ -101,10 +113,12 @@ class RateEstimate(TrainCallback):
         sched = getattr(trainer, "sched", None)
         if self.done_after_prune or sched is None or not trainer.config.topology:
             return
+        now, last = time.perf_counter(), self.last
+        self.last = now
         if self.pruned_at is None and done > self.warmup + self.steps and sched.is_prune_step(it):
-            self.pruned_at = (it, time.perf_counter())
+            self.pruned_at = (it, now, now - last)       # the prune's step, its edit included
         elif self.pruned_at is not None and it - self.pruned_at[0] == self.steps:
-            self._say(trainer, it, self.pruned_at[1], "estimate after the first prune")
+            self._say(trainer, it, self.pruned_at[1], "estimate after the first prune", edit_s=self.pruned_at[2])
             self.done_after_prune = True
 
 
