@@ -138,3 +138,17 @@ def test_trainer_fits_the_exported_colours(renderer):
                                 - tiny.images[v]) ** 2) for v in tiny.train_indices])
            for m, (p, tr, col) in out.items()}
     assert err["fit"] < 0.95 * err["dc"]
+
+
+def test_the_fit_samples_large_views_once_a_pixel():
+    """2x2 samples a pixel up to MAX_SAMPLES a view: every CPU plan's size (at most 32,768
+    pixels) and 480x270 keep 2x2; 960x540 and larger fit at 1x1 (2x2 cost 3.3-3.8x the time
+    there for the same held-out PSNR: docs/measurements.md)."""
+    from tsplus_wgpu.render.mesh_fit import fit_supersample
+    from tsplus_wgpu.types import Camera
+
+    def cam(w, h):
+        return Camera(w, h, w, w, w / 2, h / 2, np.eye(4))
+    assert [fit_supersample(cam(w, h), 2) for w, h in ((240, 135), (200, 150), (480, 270))] == [2, 2, 2]
+    assert [fit_supersample(cam(w, h), 2) for w, h in ((960, 540), (800, 600), (1920, 1080))] == [1, 1, 1]
+    assert fit_supersample(cam(240, 135), 4) == 4 and fit_supersample(cam(240, 135), 0) == 1
