@@ -8,14 +8,15 @@
 #   bash ci/gpu_check.sh [OUT_DIR]        (default: $OUT/gpu-check, else ./gpu-check)
 #
 # Environment: BUDGET seconds in all (default 540); TSPLUS_DATA the real scenes (office is
-# trained when it is there); TSPLUS_CACHE a carried cache holding office's triangulation (its
-# tri_* entry; without it the step triangulates first and may not finish); PYTHON the interpreter (default: .venv/bin/python if present, else
-# python3); TSPLUS_ADAPTER as usual. On a bare machine that has Python and numpy but not this
+# trained when it is there); TSPLUS_CACHE (an absolute path) a carried cache holding office's
+# triangulation (without it the training steps triangulate first and may not finish); PYTHON
+# the interpreter (default: .venv/bin/python if present, else python3); TSPLUS_ADAPTER as usual. On a bare machine that has Python and numpy but not this
 # package's other dependencies (no wgpu there), put their wheels (for that machine's Python)
 # in .whl/ and the Vulkan loader's .deb files in .gl/: they are unpacked first (the loader into
 # /, as root).
-# Writes two files: gpu_check.log (every step's output, with its time and the load) and
-# gpu_check.json (every benchmark's JSON, the test counts and the run's metrics).
+# Writes gpu_check.log (every step's output, with its time and the load), gpu_check.json (every
+# benchmark's JSON, the test counts, the quick run's metrics and the paper run's rows) and
+# office_paper_log.jsonl. `bash ci/gpu_pack.sh` packs, here, what a bare machine needs.
 set -u
 cd "$(dirname "$0")/.."
 out="${1:-${OUT:+$OUT/gpu-check}}"
@@ -97,6 +98,14 @@ for layout in gpu pixel cpu; do
         --json "$parts/scale-$layout.json"
 done
 step bench-step 40 "${ts[@]}" bench-step
+# last, for what is left of the budget: office as a new user on a GPU trains it (the GPU plan:
+# the paper preset at full size), cut by the budget; its log.jsonl says the rate between
+# topology edits and what each edit cost (SIGTERM writes the checkpoint, as it should)
+if [ -d "$data/office" ]; then
+    step "train office, the GPU plan (paper preset, full size), for what is left" 100000 "${ts[@]}" train "$data/office" \
+        --seed 0 --no-progress --overwrite --out "$parts/office-paper"
+    cp "$parts/office-paper/log.jsonl" "$out/office_paper_log.jsonl" 2>/dev/null
+fi
 "$py" - "$parts" "$out" <<'EOF' >>"$log" 2>&1
 import json, pathlib, sys
 import xml.etree.ElementTree as ET
@@ -112,6 +121,12 @@ if (parts / "tests.xml").exists():
 m = parts / "office" / "metrics.json"
 if m.exists():
     doc["office_metrics"] = json.loads(m.read_text())
+log = parts / "office-paper" / "log.jsonl"
+if log.exists():    # the rows (iteration, seconds, model) and the topology edits
+    rows = [json.loads(line) for line in log.read_text().splitlines() if line.strip()]
+    doc["office_paper"] = [{k: r[k] for k in ("iteration", "elapsed", "vertices", "triangles", "event", "split",
+                                              "pruned_opacity", "pruned_weight", "pruned_size") if k in r}
+                           for r in rows]
 (out / "gpu_check.json").write_text(json.dumps(doc, indent=1, default=str))
 print("wrote", out / "gpu_check.json", "with", ", ".join(doc) or "nothing")
 EOF
