@@ -193,6 +193,30 @@ def _strategy(**kw):
     return TopologyStrategy(Schedule(total=30000), **kw)
 
 
+def test_read_state_is_the_checkpoints_state(renderer, tiny):
+    """The topology edit's readback (the device's own layout) holds exactly what the
+    checkpoint's arrays hold (planar SH, flat moments), row for row, and installs unchanged."""
+    from tsplus_wgpu.train.state import VERTEX_KEYS, VertexState
+    from tsplus_wgpu.train.trainer import TrainConfig, Trainer
+    t = Trainer(tiny, TrainConfig(iterations=300, quick=True, seed=4, sh_degree=2, **SCALED_500), renderer=renderer)
+    for _ in range(12):
+        t.step()
+    got = t.read_state()
+    want = VertexState.from_flat(t.state_arrays(), t.topology.max_weight(), t.groups)
+    assert got.k == 9 and np.any(got.exp_avg_sq_sh)
+    for key in VERTEX_KEYS:
+        a, b = getattr(got, key), getattr(want, key)
+        assert a.shape == b.shape and a.dtype == np.float32, key
+        np.testing.assert_array_equal(a, b, err_msg=key)
+    np.testing.assert_array_equal(got.triangles, want.triangles)
+    np.testing.assert_array_equal(got.max_weight, want.max_weight)
+    before = t.state_arrays()
+    t.set_state(got)
+    after = t.state_arrays()
+    for key in before:
+        np.testing.assert_array_equal(after[key], before[key], err_msg=key)
+
+
 def test_densify_stop_criterion():
     """Stops when the mean L1 of the last K windows improved by less than stop_rel on the K
     before; not while it still improves; not before 2K windows; max-vertices only pauses it;
