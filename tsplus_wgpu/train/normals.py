@@ -64,6 +64,21 @@ from ..render.device_model import DeviceModel
 from ..types import TriangleModel
 
 
+def normal_priors(scene, config, normals):
+    """The trainer's normal maps, one entry per view of ``scene`` (None where a view has none):
+    ``normals`` as given (a list or an object with ``maps``), else read from ``config.normals``
+    (a folder). None when no view has one."""
+    if normals is None and config.normals:
+        from ..data.normals import load_normal_maps
+        normals = load_normal_maps(scene, config.normals)
+    if normals is None:
+        return None
+    maps = list(getattr(normals, "maps", normals))
+    if len(maps) != len(scene.images):
+        raise ValueError(f"normals: expected one entry per view ({len(scene.images)}), got {len(maps)}")
+    return maps if any(m is not None for m in maps) else None
+
+
 def normal_cotangents(prior, valid):
     """d (mean over valid pixels of 1 - <N, P>) / d (C, T) with ``N = 2 C - (1 - T)``:
     ``(v_image [H, W, 3], v_T [H, W], count)`` float64 (zero where invalid; count 0 gives
@@ -220,5 +235,6 @@ def loss_from_render(image, transmittance, prior, valid, weight=1.0):
     return float(weight) * float(np.mean(1.0 - np.einsum("pc,pc->p", n[v], np.asarray(prior, np.float64)[v])))
 
 
-__all__ = ["NormalLoss", "NormalModel", "NormalBackward", "NormalAccumulate", "prepare_prior", "normal_cotangents",
+__all__ = ["NormalLoss", "NormalModel", "NormalBackward", "NormalAccumulate", "prepare_prior", "normal_priors",
+           "normal_cotangents",
            "normal_error", "loss_from_render", "render_normals", "PRIOR_MIN_LENGTH", "PRIOR_MAX_LENGTH"]
