@@ -54,21 +54,43 @@ def test_a_cpu_adapter_plans_the_quick_preset_at_a_small_size():
     assert (p.iterations, p.iterations_from) == (None, "CPU adapter")
     for argv in (("--iterations", "500"), ("--preset", "quick"), ("--preset", "paper")):
         assert plan_run(_args(*argv), True, lambda: [(800, 600)]).iterations is None, argv
-    assert plan_run(_args(), False, _not_asked).iterations is None
+    assert plan_run(_args(), False, lambda: [(800, 600)]).iterations is None
     assert _plan("--iterations", "500") == ("quick", 4, "CPU adapter", "CPU adapter")   # quick scales to it
     # each flag stands on its own; an explicit --downscale 1 stays 1 (and no image is looked at)
     assert _plan("--preset", "paper") == ("paper", 4, "--preset", "CPU adapter")
     assert _plan("--downscale", "1") == ("quick", 1, "CPU adapter", "--downscale")
     assert plan_run(_args("--preset", "paper", "--downscale", "1"), True, _not_asked).downscale == 1
-    # the procedural scene has fixed sizes; a GPU adapter changes nothing
+    # the procedural scene has fixed sizes; a GPU adapter: the paper preset at full size
     assert plan_run(_args(scene="procedural:small"), True, _not_asked).downscale_from == "default"
-    p = plan_run(_args(), False, _not_asked)
+    assert plan_run(_args(scene="procedural:small"), False, _not_asked).downscale_from == "default"
+    p = plan_run(_args(), False, lambda: [(800, 600), (1600, 900)])
     assert (p.preset, p.downscale, p.preset_from, p.downscale_from) == ("paper", 1, "default", "default")
     # the initial points: at most half the vertex cap's where the CPU plan picks the iterations, else every point
     assert plan_run(_args(), True, lambda: [(800, 600)]).init_points_share == 0.5
     assert p.init_points_share is None
     for argv in (("--iterations", "500"), ("--preset", "quick")):
         assert plan_run(_args(*argv), True, lambda: [(800, 600)]).init_points_share is None, argv
+
+
+@pytest.mark.parametrize("size, factor, trained", [
+    ((960, 540), 1, (960, 540)), ((1600, 1200), 1, (1600, 1200)), ((1920, 1080), 2, (960, 540)),
+    ((1080, 1920), 2, (540, 960)), ((4032, 3024), 3, (1344, 1008)), ((3840, 2160), 3, (1280, 720)),
+    ((8000, 100), 3, (2667, 33)),                                   # never a side under 32 pixels
+])
+def test_a_gpu_adapter_trains_the_papers_image_size(size, factor, trained):
+    """The GPU plan: the paper preset, at full size unless the long side is over 1,600 px (the
+    paper's images are 1-1.6k px); then the smallest downscale that brings it there, said in
+    the plan with how to undo it. --downscale and a resumed run's own stand."""
+    assert planning.gpu_downscale(*size) == factor and downscaled_size(*size, factor) == trained
+    p = plan_run(_args(), False, lambda: [size, (640, 480)])
+    assert (p.preset, p.downscale, p.downscale_from) == ("paper", factor, "GPU adapter" if factor > 1 else "default")
+    assert plan_run(_args("--downscale", "1"), False, _not_asked).downscale == 1
+    if factor > 1:
+        scene = SimpleNamespace(cameras=[SimpleNamespace(width=trained[0], height=trained[1])], train_indices=[0])
+        lines = plan_lines(p, TrainConfig(iterations=30000), scene)
+        assert f"(--downscale {factor}, for the GPU: a long side of at most 1,600 px, the paper's)" in lines[0]
+        assert lines[1] == (f"GPU adapter: --downscale {factor} ({trained[0]}x{trained[1]}), the paper's image size; "
+                            "pass --downscale 1 to train at full size")
 
 
 def test_a_config_file_that_sets_the_preset_or_iterations_keeps_it(tmp_path):

@@ -6,7 +6,8 @@ preset at a downscale that keeps a training image within :data:`CPU_MAX_PIXELS`,
 iterations as fit :data:`CPU_TRAIN_SECONDS` of training on 2 cores (:func:`cpu_iterations`, from
 the time model :func:`cpu_seconds`), so that it takes about a quarter of an hour, not days, meshing
 at most :data:`CPU_INIT_POINTS_SHARE` of the vertex cap in initial points (elsewhere every point). On a
-GPU adapter: the paper preset at full size. A resumed run keeps its own. The iteration count is
+GPU adapter: the paper preset at full size, or at the downscale that brings the long side to
+:data:`GPU_MAX_SIDE` where an image is larger (the paper's images). A resumed run keeps its own. The iteration count is
 a function of the scene and the settings only, never of a clock, so the same command trains the
 same model on any machine; only its duration differs."""
 
@@ -19,6 +20,11 @@ from dataclasses import dataclass
 #: 2**15 keeps the common 16:9 and 4:3 captures at a quarter or an eighth of their size (960x540 ->
 #: 240x135, 1080x1920 -> 135x240, 32,400 pixels each). The paper's run at full size takes days there.
 CPU_MAX_PIXELS = 2**15
+#: the longest side of a training image when ``tsplus train`` picks the downscale for a GPU
+#: adapter: the paper trains on images of 1-1.6k pixels (the Mip-NeRF360 and Tanks&Temples
+#: protocols), and a phone's 4032x3024 photo at full size would be 7x the pixels of its 1344x1008,
+#: with a vertex cap (2 a pixel) past the 3M maximum and a colour fit of 12M samples a view
+GPU_MAX_SIDE = 1600
 #: the training seconds a CPU adapter's default run aims at on the reference machine (2 cores of
 #: an AMD EPYC, llvmpipe; docs/measurements.md): loading, the end of training and the held-out
 #: evaluation add 1-2 minutes, so the whole run takes about 13.
@@ -59,6 +65,19 @@ def cpu_downscale(width, height, max_pixels=CPU_MAX_PIXELS):
     from ..data.scene import downscaled_size
     d = 1
     while (math.prod(downscaled_size(width, height, d)) > max_pixels
+           and min(downscaled_size(width, height, d + 1)) >= MIN_TRAIN_SIDE):
+        d += 1
+    return d
+
+
+def gpu_downscale(width, height, max_side=GPU_MAX_SIDE):
+    """The smallest integer factor d >= 1 whose ``--downscale d`` leaves the longer side of a
+    ``width`` x ``height`` image at most ``max_side`` pixels (as the loader rounds it), short of
+    one that would leave a side under the loader's minimum."""
+    from ..data.plausible import MIN_TRAIN_SIDE
+    from ..data.scene import downscaled_size
+    d = 1
+    while (max(downscaled_size(width, height, d)) > max_side
            and min(downscaled_size(width, height, d + 1)) >= MIN_TRAIN_SIDE):
         d += 1
     return d
@@ -156,7 +175,7 @@ def plan_run(args, is_cpu, image_sizes, checkpoint=None):
     largest image (``image_sizes()``: every image's ``(width, height)`` before any downscale; not
     asked for the procedural scene, whose sizes are fixed) and at most :data:`CPU_INIT_POINTS_SHARE`
     of the vertex cap in initial points (unless the ``--config`` file sets ``init_points_share``);
-    else the paper preset at full size."""
+    else the paper preset at full size, or at :func:`gpu_downscale` of the largest image."""
     from .scenes import is_procedural
     from ..train.config import load_config_file
     preset, preset_from = args.preset, "--preset"
@@ -175,6 +194,9 @@ def plan_run(args, is_cpu, image_sizes, checkpoint=None):
         elif is_cpu and not is_procedural(args.scene):
             downscale = max(cpu_downscale(w, h) for w, h in set(image_sizes()))
             downscale_from = "CPU adapter"
+        elif not is_cpu and not is_procedural(args.scene):
+            downscale = max(gpu_downscale(w, h) for w, h in set(image_sizes()))
+            downscale_from = "GPU adapter" if downscale > 1 else "default"
         else:
             downscale, downscale_from = 1, "default"
     iterations, iterations_from = None, None
@@ -193,7 +215,8 @@ def plan_run(args, is_cpu, image_sizes, checkpoint=None):
 
 #: how the plan line names where a choice came from (:attr:`Plan.preset_from`, ``downscale_from``)
 _FROM_TEXT = {"--preset": "as given", "--downscale": "as given", "--config": "from --config",
-              "checkpoint": "the run's own", "CPU adapter": "for the CPU adapter", "default": "default"}
+              "checkpoint": "the run's own", "CPU adapter": "for the CPU adapter",
+              "GPU adapter": f"for the GPU: a long side of at most {GPU_MAX_SIDE:,} px, the paper's", "default": "default"}
 
 
 def plan_lines(plan, cfg, scene, triangles=0):
@@ -218,4 +241,7 @@ def plan_lines(plan, cfg, scene, triangles=0):
         lines.append(f"CPU adapter: {', '.join(c for c, _ in cpu)} so the training takes about "
                      f"{duration_text(seconds)} on 2 cores; pass {' '.join(u for _, u in cpu if u)} for the "
                      f"paper's run")
+    if plan.downscale_from == "GPU adapter":
+        lines.append(f"GPU adapter: --downscale {plan.downscale} ({size}), the paper's image size; pass --downscale 1 "
+                     f"to train at full size")
     return lines

@@ -29,7 +29,7 @@ from ..errors import UserError
 from ..io.atomic import describe, remove_orphans, write_bytes, write_error, write_image, write_json
 from ..train.config import TrainConfig, check_settings, cli_options, load_config_file, preset_defaults
 # re-exported (the tests and older callers import them from here)
-from .plan import (CPU_MAX_PIXELS, Plan, cpu_downscale, cpu_iterations, cpu_late_ratio, plan_lines,  # noqa: F401
+from .plan import (CPU_MAX_PIXELS, GPU_MAX_SIDE, Plan, cpu_downscale, cpu_iterations, cpu_late_ratio, plan_lines,  # noqa: F401
                    plan_run)
 
 #: flag value -> config value, for the fields whose flag does not take the value itself
@@ -59,8 +59,9 @@ def add_parser(sub):
     for name, flag, text, kwargs in cli_options():       # one option per TrainConfig field with a flag
         p.add_argument(flag, dest=name, default=None, help=text, **kwargs)
     p.add_argument("--downscale", type=int, default=None,
-                   help=f"shrink the images by this factor (default 1; on a CPU adapter the smallest that leaves a "
-                        f"training image at most {CPU_MAX_PIXELS:,} pixels; with --resume the run's own)")
+                   help=f"shrink the images by this factor (default: on a GPU 1, or the smallest that leaves a long "
+                        f"side of at most {GPU_MAX_SIDE:,} pixels, the paper's; on a CPU adapter the smallest that "
+                        f"leaves a training image at most {CPU_MAX_PIXELS:,} pixels; with --resume the run's own)")
     from .scenes import add_images_arg, add_points_arg
     add_images_arg(p)
     add_points_arg(p)
