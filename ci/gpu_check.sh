@@ -10,10 +10,10 @@
 # Environment: BUDGET seconds in all (default 540); TSPLUS_DATA the real scenes (office is
 # trained when it is there); TSPLUS_CACHE (an absolute path) a carried cache holding office's
 # triangulation (without it the training steps triangulate first and may not finish); PYTHON
-# the interpreter (default: .venv/bin/python if present, else python3); TSPLUS_ADAPTER as usual. On a bare machine that has Python and numpy but not this
-# package's other dependencies (no wgpu there), put their wheels (for that machine's Python)
-# in .whl/ and the Vulkan loader's .deb files in .gl/: they are unpacked first (the loader into
-# /, as root).
+# the interpreter (default: .venv/bin/python if present, else python3); TSPLUS_ADAPTER as usual.
+# On a bare machine that has Python and numpy but not this package's other dependencies (no
+# wgpu there), put their wheels (for that machine's Python) in .whl/ and the Vulkan loader's
+# .deb files in .gl/: they are unpacked first (the loader into /, as root).
 # Writes gpu_check.log (every step's output, with its time and the load), gpu_check.json (every
 # benchmark's JSON, the test counts, the quick run's metrics and the paper run's rows) and
 # office_paper_log.jsonl. `bash ci/gpu_pack.sh` packs, here, what a bare machine needs.

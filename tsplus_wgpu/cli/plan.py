@@ -7,9 +7,9 @@ iterations as fit :data:`CPU_TRAIN_SECONDS` of training on 2 cores (:func:`cpu_i
 the time model :func:`cpu_seconds`), so that it takes about a quarter of an hour, not days, meshing
 at most :data:`CPU_INIT_POINTS_SHARE` of the vertex cap in initial points (elsewhere every point). On a
 GPU adapter: the paper preset at full size, or at the downscale that brings the long side to
-:data:`GPU_MAX_SIDE` where an image is larger (the paper's images). A resumed run keeps its own. The iteration count is
-a function of the scene and the settings only, never of a clock, so the same command trains the
-same model on any machine; only its duration differs."""
+:data:`GPU_MAX_SIDE` where an image is larger (the paper's images). A resumed run keeps its own.
+The iteration count is a function of the scene and the settings only, never of a clock, so the
+same command trains the same model on any machine; only its duration differs."""
 
 from __future__ import annotations
 
@@ -216,7 +216,8 @@ def plan_run(args, is_cpu, image_sizes, checkpoint=None):
 #: how the plan line names where a choice came from (:attr:`Plan.preset_from`, ``downscale_from``)
 _FROM_TEXT = {"--preset": "as given", "--downscale": "as given", "--config": "from --config",
               "checkpoint": "the run's own", "CPU adapter": "for the CPU adapter",
-              "GPU adapter": f"for the GPU: a long side of at most {GPU_MAX_SIDE:,} px, the paper's", "default": "default"}
+              "GPU adapter": f"for the GPU: a long side of at most {GPU_MAX_SIDE:,} px, the paper's",
+              "default": "default"}
 
 
 def plan_lines(plan, cfg, scene, triangles=0):

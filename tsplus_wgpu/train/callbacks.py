@@ -50,8 +50,9 @@ class RateEstimate(TrainCallback):
     until iteration 601 of 3000, then a fraction of them). So the estimate is said once more,
     measured over ``steps`` steps after the first prune ("estimate after the first prune: ..."),
     with the prunes still to come at the first one's cost where they add a tenth or more (a
-    paper-scale model's prune is host work of many seconds). Later steps may still run at another rate (the supersampled last third, a model
-    densification grew): the lines answer "minutes or days?", they are not a promise.
+    paper-scale model's prune is host work of many seconds). Later steps may still run at another
+    rate (the supersampled last third, a model densification grew): the lines answer "minutes or
+    days?", they are not a promise.
 
     ``later_cost`` (optional): how many times an iteration after the first prune costs one
     before it, by a time model (``tsplus train`` on a CPU adapter:

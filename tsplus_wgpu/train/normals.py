@@ -236,5 +236,5 @@ def loss_from_render(image, transmittance, prior, valid, weight=1.0):
 
 
 __all__ = ["NormalLoss", "NormalModel", "NormalBackward", "NormalAccumulate", "prepare_prior", "normal_priors",
-           "normal_cotangents",
-           "normal_error", "loss_from_render", "render_normals", "PRIOR_MIN_LENGTH", "PRIOR_MAX_LENGTH"]
+           "normal_cotangents", "normal_error", "loss_from_render", "render_normals", "PRIOR_MIN_LENGTH",
+           "PRIOR_MAX_LENGTH"]
