@@ -29,22 +29,7 @@ start=$(date +%s)
 : >"$log"
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}" PYTHONUNBUFFERED=1
 
-if compgen -G ".gl/*.deb" >/dev/null && [ "$(id -u)" = 0 ]; then
-    for f in .gl/*.deb; do dpkg -x "$f" /; done
-    ldconfig
-fi
-icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-if [ -f "$icd" ] && [ -z "${VK_DRIVER_FILES:-}" ]; then export VK_DRIVER_FILES="$icd"; fi
-py="${PYTHON:-}"
-if [ -z "$py" ]; then
-    if [ -x .venv/bin/python ]; then py=.venv/bin/python; else py=python3; fi
-fi
-if ! "$py" -c "import wgpu, pycolmap, trimesh" 2>/dev/null && compgen -G ".whl/*.whl" >/dev/null; then
-    site=$(mktemp -d)
-    "$py" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target "$site" .whl/*.whl >>"$log" 2>&1 \
-        || echo "== the wheels in .whl/ did not install (see above)" | tee -a "$log"
-    export PYTHONPATH="$site:$PWD${PYTHONPATH:+:$PYTHONPATH}"
-fi
+source ci/gpu_env.sh     # the loader, the driver's ICD, the interpreter and the wheels: sets py
 echo "== $(nproc) cores; $(nvidia-smi -L 2>/dev/null | head -1)" | tee -a "$log"
 
 # step NAME LIMIT_S COMMAND...: COMMAND under LIMIT_S, or what is left of the budget
