@@ -64,6 +64,18 @@ def final_mesh(trainer):
     return pos_world, tris, colors
 
 
+def _nearest(points, centers):
+    """``[P]``: the index of the nearest of ``centers`` to each of ``points`` (the first on a tie),
+    a camera at a time: no [P, C, 3] array (a paper-scale mesh's unseen triangles by 56 cameras
+    made one of hundreds of megabytes)."""
+    best, out = np.full(len(points), np.inf), np.zeros(len(points), np.int64)
+    for k, c in enumerate(centers):
+        d = ((points - c) ** 2).sum(-1)
+        closer = d < best
+        best[closer], out[closer] = d[closer], k
+    return out
+
+
 def facing_views(trainer, pos_frame, tris):
     """``(triangles, info)``: each triangle's winding turned so that its front (counter-clockwise
     corners, the right-hand normal) faces the training views that draw it, by pixels drawn from
@@ -94,7 +106,7 @@ def facing_views(trainer, pos_frame, tris):
     unseen = vote == 0
     if unseen.any():                                   # no view draws it (or as often from each side)
         centers = np.array([cam.center for cam in cams])
-        near = np.argmin(((centre[unseen, None, :] - centers[None]) ** 2).sum(-1), axis=1)
+        near = _nearest(centre[unseen], centers)
         vote[unseen] = np.sign(np.einsum("ij,ij->i", normal[unseen], centers[near] - centre[unseen]))
     turn = vote < 0
     out = tris.copy()
