@@ -61,8 +61,10 @@ def split_triangles(triangles, red, num_vertices=None):
     f = len(tri)
     if f == 0 or not red.any():
         return tri.copy(), np.zeros((0, 2), np.int64)
-    corner_edges = np.stack([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]], 1)       # edge k: corner k -> k+1
-    edges, inv = np.unique(np.sort(corner_edges, axis=2).reshape(-1, 2), axis=0, return_inverse=True)
+    corner_edges = np.sort(np.stack([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]], 1), axis=2)  # edge k: k -> k+1
+    base = int(tri.max()) + 1         # an edge (lo, hi) as the one number lo * base + hi: a 1-D unique, in the same order
+    keys, inv = np.unique(corner_edges[..., 0] * base + corner_edges[..., 1], return_inverse=True)
+    edges = np.stack([keys // base, keys % base], 1)
     inv = inv.reshape(f, 3)
     while True:                       # the closure: two split edges make a triangle red
         split = np.zeros(len(edges), bool)
