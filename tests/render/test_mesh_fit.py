@@ -8,9 +8,11 @@ import pytest
 from scenes import f32_exact, look_at_camera, random_scene
 
 from tsplus_wgpu import MeshRenderer
+from tsplus_wgpu.types import Camera
 from tsplus_wgpu.reference.mesh import colour_slope
 from tsplus_wgpu.reference.mesh import mesh_raster as render_reference
-from tsplus_wgpu.render.mesh_fit import barycentrics, fit_vertex_colors, triangle_ids, view_system
+from tsplus_wgpu.render.mesh_fit import (NormalEquations, barycentrics, fit_vertex_colors, triangle_ids,
+                                         view_system)
 
 
 @pytest.fixture(scope="module")
@@ -75,6 +77,78 @@ def test_barycentrics_reproduce_the_renderers_colours(mr, seed):
     l2 = ((p1[:, 0] - p0[:, 0]) * (q[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (q[:, 0] - p0[:, 0])) / det
     affine = np.einsum("ki,kic->kc", np.stack([1 - l1 - l2, l1, l2], 1), col[t])
     assert np.abs(affine - img[r, c]).max() > 1e-3 and (np.abs(affine - img[r, c]).max(1) > tol).mean() > 0.5
+
+
+def _ray_barycentrics(positions, triangles, cam, ids, rows, cols):
+    """The twin: each sample's ray against its triangle by Moller-Trumbore, a sample at a time."""
+    out = np.zeros((len(ids), 3))
+    p = np.asarray(positions, np.float64) @ cam.R.T + cam.t
+    for k, (t, r, c) in enumerate(zip(ids, rows, cols)):
+        p0, p1, p2 = p[triangles[t]]
+        d = np.array([(c + 0.5 - cam.cx) / cam.fx, (r + 0.5 - cam.cy) / cam.fy, 1.0])
+        e1, e2 = p1 - p0, p2 - p0
+        h = np.cross(d, e2)
+        det = e1 @ h
+        b1, b2 = -p0 @ h / det, d @ np.cross(-p0, e1) / det
+        b = np.clip([1.0 - b1 - b2, b1, b2], 0.0, None)
+        out[k] = b / b.sum()
+    return out
+
+
+def test_barycentrics_match_the_ray_twin(mr):
+    """The per-triangle planes give each sample's barycentric coordinates as the ray/triangle
+    intersection does, to rounding; dropping a plane's term fails it."""
+    model, cam = random_scene(5, 64, 48, sh_k=1)
+    ids = triangle_ids(mr, model.positions, model.triangles, cam, near=0.01)
+    r, c = np.nonzero(ids >= 0)
+    b = barycentrics(model.positions, model.triangles, cam, ids[r, c], r, c)
+    twin = _ray_barycentrics(model.positions, model.triangles, cam, ids[r, c], r, c)
+    assert len(r) > 500 and np.abs(twin - np.clip(twin, 1e-6, None)).max() < 1e-3   # centres inside
+    np.testing.assert_allclose(b, twin, rtol=0, atol=1e-12)
+    assert barycentrics(model.positions, model.triangles, cam, ids[r, c][:0], r[:0], c[:0]).shape == (0, 3)
+
+
+def _dense_system(mr, positions, triangles, cam, image, s, bg):
+    """The twin of one view's normal equations: the dense A (a row a pixel: the mean of its s x s
+    samples' barycentric rows), then A^T A and A^T y."""
+    big = Camera(cam.width * s, cam.height * s, cam.fx * s, cam.fy * s, cam.cx * s, cam.cy * s, cam.world_to_camera)
+    ids = triangle_ids(mr, positions, triangles, big, near=0.01)
+    r, c = np.nonzero(ids >= 0)
+    b = _ray_barycentrics(positions, triangles, big, ids[r, c], r, c)
+    a = np.zeros((cam.width * cam.height, len(positions)))
+    pix = (r // s) * cam.width + c // s
+    for k in range(3):
+        np.add.at(a, (pix, triangles[ids[r, c], k]), b[:, k] / (s * s))
+    cover = np.bincount(pix, minlength=len(a)) / (s * s)
+    y = image.reshape(-1, 3) - np.outer(1 - cover, bg)
+    return a.T @ a, a.T @ y, pix, ids
+
+
+@pytest.mark.parametrize("s", [1, 2, 3])
+def test_normal_equations_match_the_dense_twin(mr, s):
+    """A^T A from the per-triangle blocks and the straddling pixels' own terms, and A^T y from
+    the samples, equal the dense products over two views (at 2x2 and 3x3 samples some pixels
+    straddle triangles); leaving the straddling pixels out fails it."""
+    model, _ = random_scene(6, 40, 32, sh_k=1)
+    cams = _views(2, 40, 32)
+    rng = np.random.default_rng(6)
+    imgs = [rng.uniform(0, 1, (32, 40, 3)) for _ in cams]
+    bg = np.array([0.3, 0.6, 0.1])
+    eq = NormalEquations(model.triangles, model.num_vertices)
+    ata, aty, mixed = 0.0, 0.0, 0
+    for cam, img in zip(cams, imgs):
+        cover = eq.add_view(mr, model.positions, cam, img, 0.01, supersample=s, background=bg)
+        m, v, pix, ids = _dense_system(mr, model.positions, model.triangles, cam, img, s, bg)
+        ata, aty = ata + m, aty + v
+        np.testing.assert_allclose(cover.ravel(), np.bincount(pix, minlength=cover.size) / (s * s), atol=0)
+        grid = ids.reshape(32, s, 40, s).transpose(0, 2, 1, 3).reshape(-1, s * s)
+        mixed += int(sum(len(set(g[g >= 0])) > 1 for g in grid))
+    assert (mixed > 20) == (s > 1) and np.abs(ata).max() > 1
+    np.testing.assert_allclose(eq.ata().toarray(), ata, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(eq.aty, aty, rtol=0, atol=1e-12)
+    if s > 1:
+        eq.mixed = []
+        assert np.abs(eq.ata().toarray() - ata).max() > 1e-3
 
 
 def test_view_system_is_the_supersampled_render(mr):

@@ -67,23 +67,41 @@ def triangle_ids(mesh_renderer, positions, triangles, camera: Camera, near, uplo
     return out
 
 
+def _drawn(ids, count):
+    """``(unique [U], inverse [K])``: the distinct values of ``ids`` (in ``[0, count)``) in
+    increasing order and each id's index among them; a mark and a running count, no sort."""
+    mark = np.zeros(count, bool)
+    mark[ids] = True
+    return np.flatnonzero(mark), (np.cumsum(mark) - 1)[ids]
+
+
+def _cross(a, b):
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], 1)
+
+
 def barycentrics(positions, triangles, camera: Camera, ids, rows, cols) -> np.ndarray:
     """``[K, 3]`` float64 barycentric coordinates of the pixel centres ``(rows, cols)`` on the
     triangles ``ids`` [K]: where each centre's ray meets the triangle's plane (clipped to
-    the triangle: a centre the rasteriser counted inside lies on it to rounding)."""
-    tri = np.asarray(triangles, np.int64)[ids]
-    p = np.asarray(positions, np.float64) @ camera.R.T + camera.t
-    p0, p1, p2 = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
-    d = np.stack([(cols + 0.5 - camera.cx) / camera.fx, (rows + 0.5 - camera.cy) / camera.fy,
-                  np.ones(len(ids))], 1)
-    e1, e2 = p1 - p0, p2 - p0
-    h = np.cross(d, e2)
-    det = np.einsum("ij,ij->i", e1, h)
-    det = np.where(np.abs(det) > 1e-300, det, 1e-300)
-    s = -p0                                   # ray origin (the camera centre) minus p0
-    b1 = np.einsum("ij,ij->i", s, h) / det
-    q = np.cross(s, e1)
-    b2 = np.einsum("ij,ij->i", d, q) / det
+    the triangle: a centre the rasteriser counted inside lies on it to rounding).
+
+    With the corners ``p0, p1, p2`` in the camera's frame, ``e1 = p1 - p0``, ``e2 = p2 - p0``
+    and the ray ``t d``, ``d = (x, y, 1)``, the ray meets the plane at ``b1 = d.(e2 x -p0) /
+    d.(e2 x e1)`` and ``b2 = d.(-p0 x e1) / d.(e2 x e1)`` (Cramer's rule): three vectors a
+    triangle, made once for each triangle drawn, then three dot products a sample."""
+    ids = np.asarray(ids, np.int64)
+    tri_all = np.asarray(triangles, np.int64).reshape(-1, 3)
+    if not len(ids):
+        return np.zeros((0, 3))
+    drawn, which = _drawn(ids, len(tri_all))
+    p = np.asarray(positions, np.float64)[tri_all[drawn]] @ camera.R.T + camera.t     # [U, 3 corners, 3]
+    s, e1, e2 = -p[:, 0], p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    planes = np.stack([_cross(e2, e1), _cross(e2, s), _cross(s, e1)], 1)[which]     # [K, (det, b1, b2), 3]
+    x = (np.asarray(cols, np.float64) + 0.5 - camera.cx) / camera.fx
+    y = (np.asarray(rows, np.float64) + 0.5 - camera.cy) / camera.fy
+    dots = planes[:, :, 0] * x[:, None] + planes[:, :, 1] * y[:, None] + planes[:, :, 2]   # [K, 3]
+    det = np.where(np.abs(dots[:, 0]) > 1e-300, dots[:, 0], 1e-300)
+    b1, b2 = dots[:, 1] / det, dots[:, 2] / det
     b = np.clip(np.stack([1.0 - b1 - b2, b1, b2], 1), 0.0, None)
     return b / np.maximum(b.sum(1, keepdims=True), 1e-300)
 
@@ -95,29 +113,85 @@ def fit_supersample(camera: Camera, supersample):
     return s
 
 
+#: the six entries of a symmetric 3x3 block, and the block's nine from them
+_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+_BLOCK = np.array([[0, 3, 4], [3, 1, 5], [4, 5, 2]])
+
+
+class NormalEquations:
+    """``A^T A`` and ``A^T y`` of the colour fit (module docstring), summed over views without a
+    sparse product a view. A pixel whose samples all lie on one triangle ``t`` (every covered
+    pixel at 1x1 samples, all but the edges' at 2x2) is the row ``beta`` (the mean barycentric
+    coordinates of its samples) on ``t``'s three vertices, so its ``beta beta^T`` adds to ``t``'s
+    own 3x3 block: six sums a triangle (:attr:`blocks`). The pixels whose samples straddle
+    triangles are kept as sparse ``A^T A`` terms of their own. :meth:`ata` assembles the
+    sparse ``[N, N]`` matrix once; ``A^T y`` is a sum over samples."""
+
+    def __init__(self, triangles, num_vertices):
+        self.triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
+        self.n = int(num_vertices)
+        self.blocks = np.zeros((len(self.triangles), 6))
+        self.aty = np.zeros((self.n, 3))
+        self.mixed = []                    # (rows, cols, values) of the straddling pixels' A^T A
+
+    def add_view(self, mesh_renderer, positions, camera: Camera, image, near, supersample=2,
+                 background=(0.0, 0.0, 0.0), uploaded=None):
+        """Adds one view at ``s x s`` samples a pixel (reduced to :data:`MAX_SAMPLES`); returns
+        its coverage ``[H, W]``. ``uploaded`` as in :func:`triangle_ids`."""
+        from scipy.sparse import csr_matrix
+        tri, m = self.triangles, len(self.triangles)
+        w, h = camera.width, camera.height
+        s = fit_supersample(camera, supersample)
+        cam = camera if s == 1 else Camera(w * s, h * s, camera.fx * s, camera.fy * s, camera.cx * s,
+                                           camera.cy * s, camera.world_to_camera)
+        ids = triangle_ids(mesh_renderer, positions, tri, cam, near, uploaded)
+        r, c = np.nonzero(ids >= 0)
+        tid = ids[r, c]
+        b = barycentrics(positions, tri, cam, tid, r, c) / (s * s)            # each sample's share of A's row
+        pix = (r // s) * w + c // s
+        cover = np.bincount(pix, minlength=h * w) / (s * s)
+        y = np.asarray(image, np.float64).reshape(-1, 3) - np.outer(1.0 - cover, np.asarray(background, np.float64))
+        verts = tri[tid].ravel()
+        for ch in range(3):                # A^T y: every sample's share of its pixel's colour
+            self.aty[:, ch] += np.bincount(verts, weights=(b * y[pix, ch, None]).ravel(), minlength=self.n)
+        grid = ids.reshape(h, s, w, s).transpose(0, 2, 1, 3).reshape(h * w, s * s)
+        top = grid.max(axis=1)
+        low = np.where(grid >= 0, grid, m).min(axis=1)
+        one = (top >= 0) & (low == top)                                       # pixels on a single triangle
+        pure = one[pix]
+        beta = np.stack([np.bincount(pix[pure], weights=b[pure, k], minlength=h * w) for k in range(3)], 1)
+        beta, t1 = beta[one], top[one]
+        for j, (k, q) in enumerate(_PAIRS):
+            self.blocks[:, j] += np.bincount(t1, weights=beta[:, k] * beta[:, q], minlength=m)
+        if not pure.all():
+            mix = ~pure
+            rows = _drawn(pix[mix], h * w)[1]
+            a = csr_matrix((b[mix].ravel(), (np.repeat(rows, 3), tri[tid[mix]].ravel())),
+                           shape=(int(rows.max()) + 1, self.n))
+            prod = (a.T @ a).tocoo()
+            self.mixed.append((prod.row, prod.col, prod.data))
+        return cover.reshape(h, w)
+
+    def ata(self):
+        """The sparse ``[N, N]`` ``A^T A`` (CSR) of the views added."""
+        from scipy.sparse import coo_matrix
+        used = np.flatnonzero(self.blocks.any(axis=1))
+        t = self.triangles[used]
+        rows = [np.repeat(t, 3, axis=1).ravel()] + [m[0] for m in self.mixed]
+        cols = [np.tile(t, (1, 3)).ravel()] + [m[1] for m in self.mixed]
+        vals = [self.blocks[used][:, _BLOCK.ravel()].ravel()] + [m[2] for m in self.mixed]
+        return coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(self.n, self.n)).tocsr()
+
+
 def view_system(mesh_renderer, positions, triangles, camera: Camera, image, near, supersample=2,
                 background=(0.0, 0.0, 0.0), uploaded=None):
     """One view's normal-equation terms ``(AtA [N, N] sparse, Aty [N, 3], coverage [H, W])``
     at ``s x s`` samples per pixel (reduced to :data:`MAX_SAMPLES`); ``uploaded`` as in
     :func:`triangle_ids`."""
-    from scipy.sparse import csr_matrix
-    n = len(positions)
-    s = fit_supersample(camera, supersample)
-    cam = camera if s == 1 else Camera(camera.width * s, camera.height * s, camera.fx * s, camera.fy * s,
-                                       camera.cx * s, camera.cy * s, camera.world_to_camera)
-    ids = triangle_ids(mesh_renderer, positions, triangles, cam, near, uploaded)
-    r, c = np.nonzero(ids >= 0)
-    tid = ids[r, c]
-    b = barycentrics(positions, triangles, cam, tid, r, c)
-    pix = (r // s) * camera.width + c // s
-    verts = np.asarray(triangles, np.int64)[tid]
-    a = csr_matrix((np.ravel(b / (s * s)), (np.repeat(pix, 3), np.ravel(verts))),
-                   shape=(camera.height * camera.width, n))
-    cover = np.bincount(pix, minlength=camera.height * camera.width) / (s * s)
-    y = np.asarray(image, np.float64).reshape(-1, 3) - np.outer(1.0 - cover, np.asarray(background, np.float64))
-    covered = cover > 0
-    a_cov = a[covered]
-    return (a_cov.T @ a_cov).tocsr(), a_cov.T @ y[covered], cover.reshape(camera.height, camera.width)
+    eq = NormalEquations(triangles, len(positions))
+    cover = eq.add_view(mesh_renderer, positions, camera, image, near, supersample, background, uploaded)
+    return eq.ata(), eq.aty, cover
 
 
 def fit_vertex_colors(positions, triangles, cameras, images, prior, near, mesh_renderer=None, supersample=2,
@@ -139,14 +213,13 @@ def fit_vertex_colors(positions, triangles, cameras, images, prior, near, mesh_r
     n = len(pos)
     if n == 0 or len(tri) == 0:
         return c0.copy(), dict(views=0, observed=0, iterations=0)
-    ata, aty = None, np.zeros((n, 3))
+    eq = NormalEquations(tri, n)
     uploaded = id_mesh(mr, pos, tri)
     for k, (cam, img) in enumerate(zip(cameras, images)):
-        m, r, _ = view_system(mr, pos, tri, cam, img, near, supersample, background, uploaded)
-        ata = m if ata is None else ata + m
-        aty += r
+        eq.add_view(mr, pos, cam, img, near, supersample, background, uploaded)
         if progress is not None:
             progress(k + 1)
+    ata, aty = eq.ata(), eq.aty
     diag = ata.diagonal()
     lhs = (ata + diags(np.full(n, float(prior_weight)))).tocsr()
     rhs = aty + prior_weight * c0
