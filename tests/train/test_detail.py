@@ -165,6 +165,26 @@ def test_colour_detail_budget_and_too_few_views():
     assert steps == [] and "detail budget" in info["skipped"] and info["levels"] == []
 
 
+class _Bar:
+    """Records what the end of training tells a tqdm bar."""
+
+    def __init__(self):
+        self.n, self.total, self.resets, self.stages = 0, None, 0, set()
+
+    def reset(self, total):
+        self.n, self.total, self.resets = 0, total, self.resets + 1
+
+    def update(self, n=1):
+        self.n += n
+        assert self.n <= self.total, "drew more views than planned"
+
+    def set_description(self, text):
+        self.stages.add(text)
+
+    def refresh(self):
+        pass
+
+
 def test_trainer_export_keeps_the_surface_and_the_chosen_level(renderer):
     """On the procedural scene: the subdivided export covers the same pixels at the same depths
     as the mesh without it, stays within the vertex cap, and keeps the level the held-back
@@ -180,8 +200,19 @@ def test_trainer_export_keeps_the_surface_and_the_chosen_level(renderer):
         t = Trainer(tiny, TrainConfig(iterations=40, quick=True, topology=False, log_every=0, color_detail=on,
                                       vertex_budget=3.0, detail_budget=4.0), renderer=renderer)
         t.train(progress=False, checkpoint_at_end=False)
-        meshes[on] = t.final_mesh()
+        bar = _Bar()
+        meshes[on] = t.final_mesh(bar)
         infos[on] = t.final_info.get("detail")
+        # the progress bar's plan, corrected as the stages ran, is the views they drew: the fill, the
+        # fit, the shards' pass (and both again when some were found), every detail level's
+        # validation, the kept level's fit, the winding
+        v, info = len(t.train_views), t.final_info
+        drawn = 2 * v + v + (2 * v if info["shards"] else 0) + v
+        if on:
+            drawn += v * (len(infos[on]["levels"]) + (infos[on]["chosen"] > 0))
+        assert bar.n == bar.total == drawn and bar.resets == 1, (bar.n, bar.total, drawn)
+        assert {"export: backdrop fill", "export: colour fit", "export: shards", "export: winding"} <= bar.stages
+        assert ("export: colour detail" in bar.stages) == on
     assert infos[False] is None
     info = infos[True]
     assert "skipped" not in info

@@ -38,7 +38,7 @@ def view_image_name(view):
 
 
 def evaluate_mesh(model, scene, views, mesh_renderer, supersample=4, splat_renderer=None, out=None, images=4,
-                  background=(0.0, 0.0, 0.0), interpolation="perspective", near=None, renders=None):
+                  background=(0.0, 0.0, 0.0), interpolation="perspective", near=None, renders=None, progress=None):
     """Per-view PSNR/SSIM of ``model`` (opaque, vertex colours) drawn by the mesh renderer,
     with the splatting renderer's PSNR at sigma 1e-4 / opacity 1 beside it when given, and the
     **coverage**: the fraction of the view's pixels the mesh draws (supersamples counted, so an
@@ -48,7 +48,7 @@ def evaluate_mesh(model, scene, views, mesh_renderer, supersample=4, splat_rende
     Writes ``view_XXX.png`` (ground truth | render | error heat map) for the first ``images``
     views to ``out``. ``near``: near plane in world units (default: the training default relative
     to the scene's camera radius, ``scene.frame().near_world()``). ``renders``: a list that receives
-    each view's image. Returns a list of per-view dicts."""
+    each view's image; ``progress``: called with 1 after each view. Returns a list of per-view dicts."""
     near = scene.frame().near_world() if near is None else near
     rows = []
     opaque = TriangleModel(model.positions, model.triangles, model.sh, np.ones(model.num_vertices))
@@ -70,6 +70,8 @@ def evaluate_mesh(model, scene, views, mesh_renderer, supersample=4, splat_rende
         if out is not None and n < images:
             err = np.abs(np.asarray(img, np.float64) - gt).mean(-1)
             write_image(Path(out) / view_image_name(v), np.concatenate([gt, img, heat(err)], axis=1))
+        if progress is not None:
+            progress(1)
     return rows
 
 

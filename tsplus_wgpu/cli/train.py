@@ -272,12 +272,27 @@ def _upright(scene):
     return None if up is None else up.as_dict()
 
 
-def _finish(trainer, scene, out, ckpt, psnr0):
+def _bar(progress, desc, unit, total=1):
+    """A progress bar with ETA on stderr, shown after a second and cleared when done, or None
+    (``--no-progress``)."""
+    if not progress:
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, desc=desc, unit=unit, dynamic_ncols=True, smoothing=0, leave=False, delay=1.0)
+
+
+def _finish(trainer, scene, out, ckpt, psnr0, progress=True):
     """Export the mesh (first: nothing optional before it), then the checkpoint, the
-    evaluation, metrics.json (which marks the run finished) and the test renders."""
+    evaluation, metrics.json (which marks the run finished) and the test renders; with
+    ``progress``, a bar with ETA over the views each part draws."""
     from ..apps.evaluate import evaluate_mesh, mean_coverage
     from ..train.schedules import SUPERSAMPLE_EVAL
-    pos, tri, col = trainer.final_mesh()
+    bar = _bar(progress, "export", "view")
+    try:
+        pos, tri, col = trainer.final_mesh(bar)
+    finally:
+        if bar is not None:
+            bar.close()
     _atomic_ply(out / "mesh.ply", pos, tri, col)
     fin = trainer.final_info
     colours = f"fitted to {fin['color_fit']['views']} training views" if fin["color_fit"] else "from SH DC"
@@ -295,10 +310,15 @@ def _finish(trainer, scene, out, ckpt, psnr0):
     soft_psnr, soft_ssim, _ = trainer.evaluate()
     views = list(scene.test_indices or trainer.train_views)
     # the exported mesh as an engine draws it (depth-tested MeshRenderer, 4x4 samples): as `tsplus eval`
-    imgs = []
-    rows = evaluate_mesh(trainer.mesh_model(pos, tri, col), scene, views, trainer.mesh_renderer, SUPERSAMPLE_EVAL,
-                         background=tuple(trainer.config.background),
-                         near=trainer.frame.near_world(trainer.config.near), renders=imgs)
+    imgs, bar = [], _bar(progress, "held-out views", "view", total=len(views))
+    try:
+        rows = evaluate_mesh(trainer.mesh_model(pos, tri, col), scene, views, trainer.mesh_renderer, SUPERSAMPLE_EVAL,
+                             background=tuple(trainer.config.background),
+                             near=trainer.frame.near_world(trainer.config.near), renders=imgs,
+                             progress=None if bar is None else bar.update)
+    finally:
+        if bar is not None:
+            bar.close()
     psnr_m, ssim_m = (float(np.mean([r[k] for r in rows])) for k in ("psnr", "ssim"))
     coverage = mean_coverage(rows)
     metrics = dict(iterations=trainer.iteration, held_out_views=views, held_out_are_training_views=not scene.test_indices,
@@ -364,7 +384,7 @@ def run(args):
         if viewer is not None:
             viewer.close()
     try:
-        _finish(trainer, scene, out, ckpt, psnr0)
+        _finish(trainer, scene, out, ckpt, psnr0, progress=not args.no_progress)
     except KeyboardInterrupt as exc:      # Ctrl-C, SIGTERM or SIGHUP during the export: keep the training
         import signal
         signum = getattr(exc, "signum", None) or signal.SIGINT

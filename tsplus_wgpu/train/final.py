@@ -27,7 +27,7 @@ from ..kernels.loss import supersampled_camera
 from ..io.export import dc_colors
 from .schedules import FINAL_PRUNE_WEIGHT
 from .floaters import path_floaters
-from .detail import VALIDATION_SUPERSAMPLE, angular_size, colour_detail, with_midpoints
+from .detail import LEVEL_PX, VALIDATION_SUPERSAMPLE, angular_size, colour_detail, with_midpoints
 from .shell import SHELL, SURFACE, background_shell, beyond_views, shell_radius
 from .strategy.cap import vertex_cap
 
@@ -42,26 +42,92 @@ SHARD_RESIDUAL = 2.0
 FILL_BEHIND = 0.05
 
 
-def final_mesh(trainer):
+class FinishProgress:
+    """The end of training's progress on a tqdm-like ``bar`` (None: silent), in views drawn:
+    every stage draws each training view once or twice (the detail's levels hold back a
+    quarter of them for validation, drawn instead), so a view is about the same work in every
+    stage. The total is planned at the start (:meth:`plan`) and corrected where a stage turns
+    out to draw less (no shards found, fewer detail levels tried)."""
+
+    def __init__(self, bar=None):
+        self.bar = bar
+
+    def plan(self, total):
+        if self.bar is not None:
+            self.bar.reset(total=max(int(total), 1))
+
+    def stage(self, name):
+        if self.bar is not None:
+            self.bar.set_description(f"export: {name}")
+
+    def tick(self, n=1):
+        if self.bar is not None:
+            self.bar.update(n)
+
+    @property
+    def done(self):
+        return 0 if self.bar is None else int(self.bar.n)
+
+    def replan(self, change):
+        """The stage just ended drew ``change`` views more than planned (negative: fewer)."""
+        if self.bar is not None and change:
+            self.bar.total = max(self.bar.n, self.bar.total + int(change))
+            self.bar.refresh()
+
+
+def _progress(t):
+    return getattr(t, "finish_progress", None) or FinishProgress()
+
+
+def _planned(t):
+    """``(total, export)``: the views the end of training will draw as planned, and what one
+    export (:func:`_exported`: its backdrop fill and colour fit) draws of them."""
+    cfg, v = t.config, len(t.train_views)
+    fit = cfg.mesh_colors == "fit"
+    export = v * (int(bool(cfg.fill_holes)) + int(fit))
+    total = (v if cfg.final_prune else 0) + export + v             # the cleanup, an export, the winding
+    if cfg.remove_shards:
+        total += v + export                                         # the shards' pass, the export again
+    if cfg.color_detail and fit:
+        total += v * (len(LEVEL_PX) + 2)                            # every level validated, the kept one fitted
+    return total, export
+
+
+def final_mesh(trainer, progress=None):
     """``(positions [V, 3] in world units, triangles [F, 3], colors [V, 3] in [0, 1])`` of
-    ``trainer``'s model (module docstring)."""
+    ``trainer``'s model (module docstring). ``progress``: a tqdm-like bar that counts the views
+    drawn (:class:`FinishProgress`)."""
     t, cfg = trainer, trainer.config
-    keep = cleanup_mask(t)
-    t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0)
-    mesh = _exported(t, keep)
-    if cfg.remove_shards and len(mesh[2]):
-        floaters = keep & path_floaters(t.positions_frame(), t.triangles_host, t.groups,
-                                        [t.scene.cameras[v] for v in t.train_views])
-        shards = find_shards(t, *mesh) | floaters
-        t.final_info["floaters"] = int(floaters.sum())
-        if shards.any():
-            t.final_info["shards"] = int(shards.sum())
-            mesh = _exported(t, keep & ~shards)
-    pos_frame, pos_world, tris, colors, _ = mesh
-    if cfg.color_detail and cfg.mesh_colors == "fit" and len(tris):
-        pos_frame, pos_world, tris, colors = detailed(t, pos_frame, pos_world, tris, colors)
-    tris, t.final_info["facing"] = facing_views(t, pos_frame, tris)
-    return pos_world, tris, colors
+    t.finish_progress = bar = FinishProgress(progress)
+    try:
+        total, export = _planned(t)
+        bar.plan(total)
+        keep = cleanup_mask(t)
+        t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0)
+        mesh = _exported(t, keep)
+        if cfg.remove_shards and len(mesh[2]):
+            floaters = keep & path_floaters(t.positions_frame(), t.triangles_host, t.groups,
+                                            [t.scene.cameras[v] for v in t.train_views])
+            shards = find_shards(t, *mesh) | floaters
+            t.final_info["floaters"] = int(floaters.sum())
+            if shards.any():
+                t.final_info["shards"] = int(shards.sum())
+                mesh = _exported(t, keep & ~shards)
+            else:
+                bar.replan(-export)
+        elif cfg.remove_shards:
+            bar.replan(-(len(t.train_views) + export))
+        pos_frame, pos_world, tris, colors, _ = mesh
+        if cfg.color_detail and cfg.mesh_colors == "fit":
+            start, planned = bar.done, len(t.train_views) * (len(LEVEL_PX) + 2)
+            if len(tris):
+                pos_frame, pos_world, tris, colors = detailed(t, pos_frame, pos_world, tris, colors)
+            bar.replan(bar.done - start - planned)
+        bar.stage("winding")
+        tris, t.final_info["facing"] = facing_views(t, pos_frame, tris)
+        return pos_world, tris, colors
+    finally:
+        t.finish_progress = None
 
 
 def _nearest(points, centers):
@@ -97,6 +163,7 @@ def facing_views(trainer, pos_frame, tris):
     ids_mesh = id_mesh(t.mesh_renderer, p, tris)
     for cam in cams:
         ids = triangle_ids(t.mesh_renderer, p, tris, cam, t.config.near, ids_mesh)
+        _progress(t).tick()
         seen = ids[ids >= 0]
         side = np.einsum("ij,ij->i", normal[seen], cam.center - centre[seen])
         front += np.bincount(seen, weights=side > 0, minlength=len(tris))
@@ -123,11 +190,13 @@ def cleanup_mask(trainer):
     sigma = t.sched.sigma(t.iteration)
     ss = t.sched.supersample(t.iteration)     # as the last training steps rendered
     mw = np.full(t.m, np.inf if not cfg.final_prune else 0.0, np.float32)  # off: all kept
+    _progress(t).stage("cleanup")
     for v in t.train_views if cfg.final_prune else ():
         cam = t.scene.cameras[v]
         res = t.renderer.forward(t.model, supersampled_camera(cam, t.fit_supersample(cam, ss)), sigma,
                                  cfg.background, cfg.near)
         mw = np.maximum(mw, res.max_weight)
+        _progress(t).tick()
     return (mw > FINAL_PRUNE_WEIGHT) | beyond_views(t.groups, t.positions_frame(), t.triangles_host, [
         t.scene.cameras[v] for v in t.train_views], t.config.near)   # the backdrop of other viewpoints
 
@@ -174,10 +243,12 @@ def find_shards(trainer, pos_frame, pos_world, tris, colors, source):
     near = t.config.near
     err, count, total, drawn = np.zeros(len(tris)), np.zeros(len(tris)), 0.0, 0
     ids_mesh, mesh = id_mesh(t.mesh_renderer, pos_frame, tris), t.mesh_renderer.upload((pos_frame, tris, colors))
+    _progress(t).stage("shards")
     for v in t.train_views:
         cam = t.scene.cameras[v]
         ids = triangle_ids(t.mesh_renderer, pos_frame, tris, cam, near, ids_mesh)
         img = t.mesh_renderer.render(mesh, cam, near=near).image
+        _progress(t).tick()
         r = np.mean((np.asarray(img, np.float64) - t.scene.images[v]) ** 2, axis=-1)
         ok = ids >= 0
         err += np.bincount(ids[ok], weights=r[ok], minlength=len(tris))
@@ -223,9 +294,11 @@ def backdrop_fill(trainer, positions, triangles, occluders=None):
     alltri = np.concatenate([triangles, shell.triangles + len(positions)])
     seen = np.zeros(len(shell.triangles), bool)
     ids_mesh = id_mesh(t.mesh_renderer, allpos, alltri)
+    _progress(t).stage("backdrop fill")
     for cam in cams:
         ids = triangle_ids(t.mesh_renderer, allpos, alltri, cam, t.config.near, ids_mesh)
         seen[ids[ids >= m0] - m0] = True
+        _progress(t).tick()
     if not seen.any():
         return empty
     if occluders is not None:      # and their neighbours: a hole's edge is seen from other places too
@@ -241,6 +314,7 @@ def backdrop_fill(trainer, positions, triangles, occluders=None):
 def fitted_colors(trainer, positions, triangles, prior):
     """The least-squares vertex colours of the mesh ``(positions, triangles)`` (in the
     trainer's frame) against the training photos, drawn as ``tsplus eval`` draws it."""
+    _progress(trainer).stage("colour fit")
     colors, info = fit_to_views(trainer, positions, triangles, prior, trainer.train_views)
     trainer.final_info["color_fit"] = info
     return colors
@@ -251,9 +325,11 @@ def fit_to_views(trainer, positions, triangles, prior, views):
     against the scene's views numbered ``views``."""
     from ..render.mesh_fit import fit_vertex_colors
     t = trainer
+    bar = _progress(t)
     return fit_vertex_colors(positions, triangles, [t.scene.cameras[v] for v in views],
                              [t.scene.images[v] for v in views], prior, t.config.near, t.mesh_renderer,
-                             supersample=FIT_SUPERSAMPLE, background=t.config.background)
+                             supersample=FIT_SUPERSAMPLE, background=t.config.background,
+                             progress=lambda _k: bar.tick())
 
 
 def detail_cap(config, cameras):
@@ -272,6 +348,7 @@ def detailed(trainer, pos_frame, pos_world, triangles, colors):
     bound: the trainer never draws it), and its colours fitted again to every training view."""
     from ..render.mesh_fit import ID_BASE
     t = trainer
+    _progress(t).stage("colour detail")
     views = list(t.train_views)
     cams = [t.scene.cameras[v] for v in views]
     imgs = [t.scene.images[v] for v in views]
@@ -281,8 +358,10 @@ def detailed(trainer, pos_frame, pos_world, triangles, colors):
         return fit_to_views(t, pos, tri, prior, [views[i] for i in which])[0]
 
     def draw(pos, tri, col, i):
-        return t.mesh_renderer.render((pos, tri, col), cams[i], near=near, supersample=VALIDATION_SUPERSAMPLE,
-                                      background=bg).image
+        img = t.mesh_renderer.render((pos, tri, col), cams[i], near=near, supersample=VALIDATION_SUPERSAMPLE,
+                                     background=bg).image
+        _progress(t).tick()
+        return img
 
     budget = detail_cap(t.config, cams)
     tri, steps, info = colour_detail(pos_frame, triangles, colors, cams, imgs, fit, draw, budget,

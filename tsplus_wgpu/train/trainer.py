@@ -463,11 +463,11 @@ class Trainer:
             self._mesh_renderer = MeshRenderer(self.ctx)
         return self._mesh_renderer
 
-    def final_mesh(self):
+    def final_mesh(self, progress=None):
         """The exported mesh: ``(positions [V, 3] in world units, triangles [F, 3], colors [V, 3]
         in [0, 1])`` after the end-of-training cleanup, colours fitted to the training photos or
-        from SH DC (:func:`.final.final_mesh`)."""
-        return final_mesh(self)
+        from SH DC (:func:`.final.final_mesh`; ``progress``: a tqdm-like bar of the views drawn)."""
+        return final_mesh(self, progress)
 
     @staticmethod
     def mesh_model(positions, triangles, colors):
