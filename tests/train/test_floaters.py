@@ -31,6 +31,27 @@ def test_path_distance_matches_a_dense_twin():
     assert np.all(got <= twin + 1e-12)                      # exact: never above a sampled distance
 
 
+def test_the_lower_bound_drops_only_what_is_beyond_the_limit(monkeypatch):
+    """``may_reach`` keeps every point the exact distance puts within the limit (points scattered
+    about the path, many just past it), and drops most of those far from it; ``near_path`` with it
+    finds the same triangles as without it."""
+    import tsplus_wgpu.train.floaters as fl
+    rng = np.random.default_rng(1)
+    links, _ = camera_path(LINE)
+    pts = rng.uniform([-3, -3, -3], [12, 3, 3], size=(20000, 3))
+    limit = rng.uniform(0.1, 1.5, len(pts))
+    exact = path_distance(pts, LINE, links) < limit
+    keep = fl.may_reach(pts, LINE, links, limit)
+    assert exact.sum() > 500 and np.all(keep[exact]) and (~keep).sum() > 0.5 * (~exact).sum()
+    assert (np.abs(path_distance(pts, LINE, links) - limit) < 0.02).sum() > 50   # some right at the limit
+    cen = np.repeat(pts[:3000], 3, axis=0) + rng.normal(0, 0.2, (9000, 3))
+    tris = np.arange(9000).reshape(-1, 3)
+    with_bound = near_path(cen, tris, LINE)
+    monkeypatch.setattr(fl, "may_reach", lambda p, *a: np.ones(len(p), bool))
+    np.testing.assert_array_equal(with_bound, near_path(cen, tris, LINE))
+    assert 30 < with_bound.sum() < 2900
+
+
 def test_near_path_finds_pierced_and_close_triangles_and_nothing_beyond():
     r = PATH_RADIUS * 1.0
     tris = np.arange(12).reshape(4, 3)

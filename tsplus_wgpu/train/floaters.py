@@ -75,6 +75,22 @@ def path_distance(points, centres, links, chunk=4096):
     return out
 
 
+def may_reach(points, centres, links, limit):
+    """``[N]`` bool: the points whose distance to the path (:func:`path_distance`) may be under
+    ``limit`` [N]. A lower bound rules the rest out without measuring: a point of a link lies
+    within half the link's length of one of its ends, so the path is never nearer than the
+    nearest centre (a k-d tree) less half the longest link. Exact: nothing it drops is within
+    ``limit``; the margin of 1e-9 covers the rounding."""
+    from scipy.spatial import cKDTree
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    c = np.asarray(centres, np.float64).reshape(-1, 3)
+    if not len(c) or not len(p):
+        return np.ones(len(p), bool)
+    half = 0.5 * float(np.linalg.norm(c[links[:, 1]] - c[links[:, 0]], axis=1).max()) if len(links) else 0.0
+    nearest = cKDTree(c).query(p)[0]
+    return nearest - half < np.asarray(limit, np.float64) + 1e-9 * (nearest + half + np.abs(limit))
+
+
 def _grid(steps):
     """Barycentric weights ``[K, 3]`` of the grid with ``steps`` steps along each edge."""
     i, j = np.meshgrid(np.arange(steps + 1), np.arange(steps + 1), indexing="ij")
@@ -95,7 +111,8 @@ def near_path(positions, triangles, centres, radius=None):
     v = np.asarray(positions, np.float64)[tri]                       # [F, 3, 3]
     cen = v.mean(axis=1)
     reach = np.linalg.norm(v - cen[:, None], axis=2).max(axis=1)      # bounding sphere about the centroid
-    cand = np.flatnonzero(path_distance(cen, centres, links) < r + reach)
+    maybe = np.flatnonzero(may_reach(cen, centres, links, r + reach))   # most are far: not measured
+    cand = maybe[path_distance(cen[maybe], centres, links) < r + reach[maybe]]
     if not len(cand):
         return out
     edge = np.linalg.norm(v[cand] - np.roll(v[cand], 1, axis=1), axis=2).max(axis=1)
@@ -124,5 +141,5 @@ def path_floaters(positions, triangles, groups, cameras):
     return out
 
 
-__all__ = ["PATH_NEIGHBOURS", "PATH_MAX_LINK", "PATH_RADIUS", "camera_path", "path_distance", "near_path",
-           "path_floaters"]
+__all__ = ["PATH_NEIGHBOURS", "PATH_MAX_LINK", "PATH_RADIUS", "camera_path", "path_distance", "may_reach",
+           "near_path", "path_floaters"]
