@@ -61,7 +61,7 @@ def triangle_ids(mesh_renderer, positions, triangles, camera: Camera, near, uplo
     if uploaded is None:
         uploaded = id_mesh(mesh_renderer, positions, triangles)
     res = mesh_renderer.render(uploaded, camera, near=near)
-    img = np.asarray(res.image, np.float64)
+    img = res.image                       # float32: whole numbers below ID_BASE, exact
     out = np.rint(img[..., 0]).astype(np.int64) + ID_BASE * np.rint(img[..., 1]).astype(np.int64)
     out[res.coverage <= 0] = -1
     return out
