@@ -147,7 +147,7 @@ def test_normal_equations_match_the_dense_twin(mr, s):
     np.testing.assert_allclose(eq.ata().toarray(), ata, rtol=0, atol=1e-12)
     np.testing.assert_allclose(eq.aty, aty, rtol=0, atol=1e-12)
     if s > 1:
-        eq.mixed = []
+        eq.mixed = None
         assert np.abs(eq.ata().toarray() - ata).max() > 1e-3
 
 

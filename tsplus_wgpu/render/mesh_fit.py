@@ -121,18 +121,19 @@ _BLOCK = np.array([[0, 3, 4], [3, 1, 5], [4, 5, 2]])
 class NormalEquations:
     """``A^T A`` and ``A^T y`` of the colour fit (module docstring), summed over views without a
     sparse product a view. A pixel whose samples all lie on one triangle ``t`` (every covered
-    pixel at 1x1 samples, all but the edges' at 2x2) is the row ``beta`` (the mean barycentric
+    pixel at 1x1 samples, at 2x2 all but those on edges) is the row ``beta`` (the mean barycentric
     coordinates of its samples) on ``t``'s three vertices, so its ``beta beta^T`` adds to ``t``'s
     own 3x3 block: six sums a triangle (:attr:`blocks`). The pixels whose samples straddle
-    triangles are kept as sparse ``A^T A`` terms of their own. :meth:`ata` assembles the
-    sparse ``[N, N]`` matrix once; ``A^T y`` is a sum over samples."""
+    triangles make a sparse ``A^T A`` of their own, summed view by view (:attr:`mixed`; most
+    pixels where triangles are about a pixel wide). :meth:`ata` assembles the sparse ``[N, N]``
+    matrix; ``A^T y`` is a sum over samples."""
 
     def __init__(self, triangles, num_vertices):
         self.triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
         self.n = int(num_vertices)
         self.blocks = np.zeros((len(self.triangles), 6))
         self.aty = np.zeros((self.n, 3))
-        self.mixed = []                    # (rows, cols, values) of the straddling pixels' A^T A
+        self.mixed = None                  # the straddling pixels' A^T A (CSR), summed over the views
 
     def add_view(self, mesh_renderer, positions, camera: Camera, image, near, supersample=2,
                  background=(0.0, 0.0, 0.0), uploaded=None):
@@ -168,8 +169,8 @@ class NormalEquations:
             rows = _drawn(pix[mix], h * w)[1]
             a = csr_matrix((b[mix].ravel(), (np.repeat(rows, 3), tri[tid[mix]].ravel())),
                            shape=(int(rows.max()) + 1, self.n))
-            prod = (a.T @ a).tocoo()
-            self.mixed.append((prod.row, prod.col, prod.data))
+            prod = (a.T @ a).tocsr()
+            self.mixed = prod if self.mixed is None else self.mixed + prod
         return cover.reshape(h, w)
 
     def ata(self):
@@ -177,11 +178,9 @@ class NormalEquations:
         from scipy.sparse import coo_matrix
         used = np.flatnonzero(self.blocks.any(axis=1))
         t = self.triangles[used]
-        rows = [np.repeat(t, 3, axis=1).ravel()] + [m[0] for m in self.mixed]
-        cols = [np.tile(t, (1, 3)).ravel()] + [m[1] for m in self.mixed]
-        vals = [self.blocks[used][:, _BLOCK.ravel()].ravel()] + [m[2] for m in self.mixed]
-        return coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(self.n, self.n)).tocsr()
+        out = coo_matrix((self.blocks[used][:, _BLOCK.ravel()].ravel(),
+                          (np.repeat(t, 3, axis=1).ravel(), np.tile(t, (1, 3)).ravel())), shape=(self.n, self.n)).tocsr()
+        return out if self.mixed is None else (out + self.mixed).tocsr()
 
 
 def view_system(mesh_renderer, positions, triangles, camera: Camera, image, near, supersample=2,
