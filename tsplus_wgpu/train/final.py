@@ -190,7 +190,8 @@ def cleanup_mask(trainer):
     sigma = t.sched.sigma(t.iteration)
     ss = t.sched.supersample(t.iteration)     # as the last training steps rendered
     mw = np.full(t.m, np.inf if not cfg.final_prune else 0.0, np.float32)  # off: all kept
-    _progress(t).stage("cleanup")
+    if cfg.final_prune:
+        _progress(t).stage("cleanup")
     for v in t.train_views if cfg.final_prune else ():
         cam = t.scene.cameras[v]
         res = t.renderer.forward(t.model, supersampled_camera(cam, t.fit_supersample(cam, ss)), sigma,
