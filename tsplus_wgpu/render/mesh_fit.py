@@ -119,11 +119,10 @@ _BLOCK = np.array([[0, 3, 4], [3, 1, 5], [4, 5, 2]])
 
 
 class NormalEquations:
-    """``A^T A`` and ``A^T y`` of the colour fit (module docstring), summed over views without a
-    sparse product a view. A pixel whose samples all lie on one triangle ``t`` (every covered
-    pixel at 1x1 samples, at 2x2 all but those on edges) is the row ``beta`` (the mean barycentric
-    coordinates of its samples) on ``t``'s three vertices, so its ``beta beta^T`` adds to ``t``'s
-    own 3x3 block: six sums a triangle (:attr:`blocks`). The pixels whose samples straddle
+    """``A^T A`` and ``A^T y`` of the colour fit (module docstring), summed over views. A pixel
+    whose samples all lie on one triangle ``t`` (every covered pixel at 1x1 samples) is the row
+    ``beta`` (the mean barycentric coordinates of its samples) on ``t``'s three vertices, so its
+    ``beta beta^T`` adds to ``t``'s own 3x3 block: six sums a triangle (:attr:`blocks`). The pixels whose samples straddle
     triangles make a sparse ``A^T A`` of their own, summed view by view (:attr:`mixed`; most
     pixels where triangles are about a pixel wide). :meth:`ata` assembles the sparse ``[N, N]``
     matrix; ``A^T y`` is a sum over samples."""
