@@ -80,17 +80,17 @@ def _progress(t):
 
 
 def _planned(t):
-    """``(total, export)``: the views the end of training will draw as planned, and what one
-    export (:func:`_exported`: its backdrop fill and colour fit) draws of them."""
+    """``(total, export, detail)``: the views the end of training will draw as planned, and what
+    one export (:func:`_exported`: its backdrop fill and colour fit) and the colour detail (every
+    level validated, the kept one fitted) draw of them."""
     cfg, v = t.config, len(t.train_views)
     fit = cfg.mesh_colors == "fit"
     export = v * (int(bool(cfg.fill_holes)) + int(fit))
-    total = (v if cfg.final_prune else 0) + export + v             # the cleanup, an export, the winding
+    detail = v * (len(LEVEL_PX) + 2) if cfg.color_detail and fit else 0
+    total = (v if cfg.final_prune else 0) + export + detail + v     # the cleanup, an export, the detail, the winding
     if cfg.remove_shards:
         total += v + export                                         # the shards' pass, the export again
-    if cfg.color_detail and fit:
-        total += v * (len(LEVEL_PX) + 2)                            # every level validated, the kept one fitted
-    return total, export
+    return total, export, detail
 
 
 def final_mesh(trainer, progress=None):
@@ -100,7 +100,7 @@ def final_mesh(trainer, progress=None):
     t, cfg = trainer, trainer.config
     t.finish_progress = bar = FinishProgress(progress)
     try:
-        total, export = _planned(t)
+        total, export, detail = _planned(t)
         bar.plan(total)
         keep = cleanup_mask(t)
         t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0)
@@ -119,10 +119,10 @@ def final_mesh(trainer, progress=None):
             bar.replan(-(len(t.train_views) + export))
         pos_frame, pos_world, tris, colors, _ = mesh
         if cfg.color_detail and cfg.mesh_colors == "fit":
-            start, planned = bar.done, len(t.train_views) * (len(LEVEL_PX) + 2)
+            start = bar.done
             if len(tris):
                 pos_frame, pos_world, tris, colors = detailed(t, pos_frame, pos_world, tris, colors)
-            bar.replan(bar.done - start - planned)
+            bar.replan(bar.done - start - detail)
         bar.stage("winding")
         tris, t.final_info["facing"] = facing_views(t, pos_frame, tris)
         return pos_world, tris, colors
