@@ -1,5 +1,5 @@
 """shaders/normals/: each kernel alone against its float64 twin (tsplus_wgpu.reference.normals).
-The whole normal-loss chain is tested in tests/test_train_normals.py."""
+The whole normal-loss chain is tested in tests/train/test_normals.py."""
 
 import numpy as np
 import pytest
