@@ -5,8 +5,9 @@ import math
 import subprocess
 import sys
 
+import pytest
 
-from tsplus_wgpu.cli.main import main
+from tsplus_wgpu.cli.main import COMMANDS, main
 
 
 def run(*args):
@@ -22,6 +23,20 @@ def test_help_lists_commands():
     for cmd in ("render", "bench-raster", "bench-backward", "train", "inspect"):
         sub = run(cmd, "--help")
         assert sub.returncode == 0 and "usage: tsplus " + cmd in sub.stdout
+
+
+@pytest.mark.parametrize("cmd", sorted(COMMANDS))
+def test_every_command_has_help(cmd, capsys):
+    """Every command of the table answers ``--help`` with its usage and a description, and the
+    top-level help names it."""
+    with pytest.raises(SystemExit) as exit_:
+        main([cmd, "--help"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: tsplus " + cmd) and len(out.splitlines()) > 5
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    assert cmd in capsys.readouterr().out
 
 
 def test_render_main_job(tmp_path, capsys):

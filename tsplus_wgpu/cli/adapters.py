@@ -37,7 +37,13 @@ def layout_renderer(args):
 
 
 def add_parser(sub):
-    return sub.add_parser("adapters", help="list the GPU adapters wgpu sees, with features and the chosen one")
+    return sub.add_parser(
+        "adapters", help="list the GPU adapters wgpu sees, with features and the chosen one",
+        description="List the GPU adapters wgpu sees (Vulkan, Metal, D3D12; Mesa lavapipe on a machine without a "
+                    "GPU), each with its type, its optional features (timestamps, float32 atomics, subgroups), its "
+                    "storage-binding and buffer-size limits and the kernel layout it gets. The one marked * is what "
+                    "every command uses unless --adapter or TSPLUS_ADAPTER chooses another; TSPLUS_WEBGPU_LIMITS=1 "
+                    "keeps WebGPU's default limits, TSPLUS_LAYOUT=cpu|gpu|pixel sets the layout.")
 
 
 def run(args):

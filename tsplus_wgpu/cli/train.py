@@ -42,7 +42,7 @@ def add_parser(sub):
         "train", help="train Triangle Splatting+ on a scene and export an opaque, vertex-coloured mesh",
         description="Train on SCENE (a COLMAP / transforms.json / LLFF / photos folder or a video; default: the built-in "
                     "procedural scene, 'procedural:tiny|small|demo' to pick its size) and write to --out: "
-                    "mesh.ply (opaque, vertex colours from SH DC), metrics.json (held-out PSNR/SSIM), test "
+                    "mesh.ply (opaque; vertex colours fitted to the training photos, --mesh-colors), metrics.json (held-out PSNR/SSIM), test "
                     "renders, log.jsonl, config.json and checkpoint.npz (--resume continues it bit-identically). "
                     "--normals DIR adds method.md's optional normal loss.")
     p.add_argument("scene", nargs="?", default="procedural:small",
