@@ -30,7 +30,7 @@ def test_every_flag_comes_from_a_field_and_shows_its_default():
     names = {f.name: f for f in fields(TrainConfig)}
     opts = cli_options()
     assert {o[0] for o in opts} == {"iterations", "indoor", "seed", "log_every", "checkpoint_every", "topology",
-                                    "max_vertices", "vertex_budget", "densify_stop_rel", "shell", "init_max_edge", "carve", "clear_path", "sh_degree", "final_prune",
+                                    "max_vertices", "vertex_budget", "densify_stop_rel", "quick_early_prune", "shell", "init_max_edge", "carve", "clear_path", "sh_degree", "final_prune",
                                     "mesh_colors", "fill_holes", "fill_hidden", "remove_shards", "color_detail", "detail_budget", "normals"}
     for name, flag, text, _ in opts:
         f = names[name]
@@ -171,3 +171,16 @@ def test_the_normals_folder_must_exist_on_the_command_line_not_in_the_library(tm
     assert "--normals: expected an existing folder" in _flag_error("--normals", str(tmp_path / "nope"))
     cfg, _ = _config("--normals", str(tmp_path))
     assert cfg.normals == str(tmp_path.resolve())
+
+
+def test_a_checkpoint_from_before_the_early_prune_resumes_without_it():
+    """A checkpoint's config lacking ``quick_early_prune`` was trained without it: resuming keeps it
+    off (a field new since then otherwise takes its default); one that has it keeps its own."""
+    from tsplus_wgpu.train.checkpoint import resume_config
+    saved = asdict(TrainConfig.preset(quick=True))
+    old = {k: v for k, v in saved.items() if k != "quick_early_prune"}
+    assert TrainConfig.preset(quick=True).quick_early_prune
+    assert resume_config({"config": old}).quick_early_prune is False
+    assert resume_config({"config": saved}).quick_early_prune is True
+    with pytest.raises(ValueError, match="quick_early_prune False .*pass --early-prune off to continue it"):
+        resume_config({"config": old}, TrainConfig.preset(quick=True))

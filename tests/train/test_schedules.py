@@ -184,3 +184,17 @@ def test_floor_still_ends_opaque_when_the_run_is_too_short_for_a_hard_prune():
 def test_first_prune_step_is_the_first_iteration_that_prunes(total, quick):
     s = Schedule(total=total, quick=quick)
     assert s.first_prune_step() == next((i for i in range(1, total + 1) if s.is_prune_step(i)), None)
+
+
+@pytest.mark.parametrize("total,views", [(600, 21), (1700, 67), (2900, 24), (300, 1)])
+def test_the_early_prune_comes_at_the_densify_steps_before_the_first_prune(total, views):
+    s = Schedule(total=total, quick=True, views=views, topology_epochs=3, early_prune=True)
+    first = s.first_prune_step()
+    early = [i for i in range(1, total + 1) if s.is_early_prune_step(i)]
+    assert early == [i for i in range(1, (first or total + 1)) if s.is_densify_step(i)]
+    assert early and not any(s.is_prune_step(i) for i in early)
+    assert all(s.state(i)["early_prune"] == (i in early) for i in range(1, total + 1))
+    # only a quick run with the switch and the opacity criterion on
+    for off in (dict(early_prune=False), dict(hard_prune=False), dict(quick=False)):
+        o = Schedule(**{**dict(total=total, quick=True, views=views, topology_epochs=3, early_prune=True), **off})
+        assert not any(o.is_early_prune_step(i) for i in range(1, total + 1)), off

@@ -346,3 +346,31 @@ def test_fill_hidden_covers_what_the_shell_lost_behind_the_surfaces(renderer):
     whole = background_shell(cams, [t.scene.images[v] for v in t.train_views], t.scene.points)
     cover["whole shell"] = float((triangle_ids(t.mesh_renderer, whole.positions, whole.triangles, novel, near) >= 0).mean())
     assert cover["holes"] < cover["whole shell"] - 0.05 and cover["hidden"] >= cover["whole shell"], cover
+
+
+def test_the_early_prune_takes_transparent_surface_triangles_only():
+    """Before the first prune step a quick run's densify step deletes the surface triangles whose
+    min vertex opacity is at or below the threshold: not the shell's, not by weight, and the running
+    max weight is not reset."""
+    from tsplus_wgpu.train.strategy import TopologyStrategy
+    sched = Schedule(total=1700, quick=True, views=67, topology_epochs=3, early_prune=True)
+    it = next(i for i in range(1, 1701) if sched.is_early_prune_step(i))
+    cams = [_look_at((0.5, 0.5, 0), (0.5, 0.5, 5))]
+    s = TopologyStrategy(sched)
+    s.densify_stopped, s.read_l1_window = "off in this test", lambda it: None      # no device ring here
+    thr = sched.prune_threshold(it)
+    # vertex 3 (triangle 1's own corner) transparent, the shell's as well; triangle 0 stays at 0.28
+    st = _state([SURFACE, SURFACE, SHELL], [0.28, 0.28, 0.28, thr - 1e-3, 0.01, 0.01, 0.01])
+    st = replace(st, max_weight=np.array([0.02, 0.3, 0.0], np.float32))   # triangle 0 too light for the weight test
+    out = s.edit(st, it, [0], cams)
+    rec = s.events[-1]
+    assert rec["pruned_early"] == 1 and "pruned_weight" not in rec and "pruned_opacity" not in rec
+    np.testing.assert_array_equal(out.groups, [SURFACE, SHELL])
+    np.testing.assert_array_equal(out.max_weight, np.float32([0.02, 0.0]))  # kept, not reset
+    # just above the threshold nothing goes
+    above = _state([SURFACE, SURFACE, SHELL], [0.28, 0.28, 0.28, thr + 1e-3, 0.01, 0.01, 0.01])
+    assert not s.early_prune_mask(above, it, {}).any()
+    # without the switch the same step only densifies
+    plain = TopologyStrategy(Schedule(total=1700, quick=True, views=67, topology_epochs=3))
+    plain.densify_stopped, plain.read_l1_window = "off in this test", lambda it: None
+    assert plain.edit(st, it, [0], cams).m == 3 and "pruned_early" not in plain.events[-1]

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
 
 import numpy as np
@@ -215,17 +215,29 @@ def resume_config(meta, config=None):
     """The config to continue a checkpoint with: the checkpoint's own (fields it lacks at
     their defaults), or ``config`` after checking that it agrees on
     :attr:`TrainConfig.RESUME_KEYS`."""
-    saved = {**asdict(TrainConfig()), **meta["config"]}
+    # a checkpoint from before quick_early_prune existed trained without it
+    saved = {**asdict(TrainConfig()), "quick_early_prune": False, **meta["config"]}
     saved["background"] = tuple(saved["background"])
     if config is None:
         return TrainConfig(**saved)
     mine = asdict(config)
     mine["background"] = tuple(mine["background"])
-    diff = [f"{k} {saved[k]!r} (checkpoint) vs {mine[k]!r}" for k in TrainConfig.RESUME_KEYS
-            if saved.get(k) != mine.get(k)]
-    if diff:
-        raise ValueError(f"--resume: the run's settings differ from the checkpoint's: {'; '.join(diff)}")
+    keys = [k for k in TrainConfig.RESUME_KEYS if saved.get(k) != mine.get(k)]
+    if keys:
+        diff = "; ".join(f"{k} {saved[k]!r} (checkpoint) vs {mine[k]!r}" for k in keys)
+        flags = {f.name: f.metadata.get("flag") for f in fields(TrainConfig)}
+        hint = [f"{flags[k]} {_flag_value(saved[k])}" for k in keys if flags.get(k)]
+        fix = f"pass {' '.join(hint)} to continue it, or" if len(hint) == len(keys) else "use the checkpoint's settings, or"
+        raise ValueError(f"--resume: the run's settings differ from the checkpoint's: {diff}; {fix} start again in a "
+                         f"new --out folder")
     return config
+
+
+def _flag_value(value):
+    """How ``tsplus train`` spells ``value`` on its command line."""
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    return " ".join(str(v) for v in value) if isinstance(value, (list, tuple)) else str(value)
 
 
 __all__ = ["CHECKPOINT_VERSION", "CheckpointError", "write_checkpoint", "read_checkpoint", "resume_config",

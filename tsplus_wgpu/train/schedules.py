@@ -110,6 +110,8 @@ class Schedule:
               thresholds 0.235 / 0.245): the switch removes the criterion itself.
             * ``weight_prune=False``: no max-blending-weight criterion (opacity and size only:
               "w/o blending weight pruning").
+        early_prune: with ``quick``, the densify steps before the first prune step also prune by
+            opacity (:meth:`is_early_prune_step`; ``TrainConfig.quick_early_prune``).
     """
 
     total: int = FULL_RUN
@@ -123,6 +125,7 @@ class Schedule:
     opacity_mode: str = "opaque"
     hard_prune: bool = True
     weight_prune: bool = True
+    early_prune: bool = False
 
     def __post_init__(self):
         if isinstance(self.total, bool) or int(self.total) != self.total or self.total < 1:
@@ -243,6 +246,18 @@ class Schedule:
         first = self.at(self._pick(PRUNE_AFTER)) + self.topology_every()
         return first if first <= self.total else None
 
+    def is_early_prune_step(self, it):
+        """A quick run's opacity prune before its first prune step (``early_prune``, with the
+        opacity criterion on): every densify step before :meth:`first_prune_step` also deletes the
+        triangles whose min vertex opacity is at or below :meth:`prune_threshold` (not a method.md
+        step: the quick schedule's first prune comes after 3 epochs, and until then each
+        iteration draws the whole initial Delaunay mesh, most of whose faces the early opacity
+        loss has already made transparent)."""
+        if not (self.quick and self.early_prune and self.hard_prune) or not self.is_densify_step(it):
+            return False
+        first = self.first_prune_step()
+        return first is None or it < first
+
     def is_hard_prune_step(self, it):
         """The hard prune of the paper (iteration 5000; in a quick run with a longer topology
         interval, the first prune step at or after it)."""
@@ -315,6 +330,7 @@ class Schedule:
         return dict(iteration=int(it), sh_degree=self.sh_degree(it), sigma=self.sigma(it),
                     opacity_floor=self.opacity_floor(it), floor_changes=self.opacity_floor_changes(it),
                     prune=self.is_prune_step(it), hard_prune=self.is_hard_prune_step(it),
+                    early_prune=self.is_early_prune_step(it),
                     prune_criteria=self.prune_criteria(),
                     prune_threshold=self.prune_threshold(it), densify=self.is_densify_step(it),
                     supersample=self.supersample(it), **{f"lr_{k}": v for k, v in self.learning_rates(it).items()})

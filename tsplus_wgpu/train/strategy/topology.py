@@ -27,7 +27,10 @@ At a topology step (every 500 iterations, scaled with ``quick``; one host round 
    two coincide. The weight criterion needs the maximum over *all* training views: when the
    views rendered since the last reset do not cover them (a quick run's interval is shorter
    than an epoch), that prune skips the weight criterion and the maximum keeps accumulating;
-   the maximum is reset after each prune that applied it.
+   the maximum is reset after each prune that applied it. **Early prune** (a quick run,
+   ``quick_early_prune``; ``Schedule.is_early_prune_step``): each densify step before the first
+   prune step first deletes the surface triangles whose min vertex opacity is <= thr (the
+   opacity test alone, :meth:`TopologyStrategy.early_prune_mask`).
 2. **Remove unused vertices** and compact the indices (:func:`.ops.remove_unused`).
 3. **Densify** (``is_densify_step``: every 500 in (500, 13000) [(1000, 25000)]) unless
    stopped: ``n = min(cap, 1.23 [1.27] V) - V`` (``Schedule.densify_count``, cap = the run's
@@ -227,6 +230,8 @@ class TopologyStrategy:
         if s.is_prune_step(it):
             drop, reset = self.prune_mask(state, it, train_views, cameras, rec)
             state = ops.prune(state, drop)
+        elif s.is_early_prune_step(it):
+            state = ops.prune(state, self.early_prune_mask(state, it, rec))
         else:
             state = ops.remove_unused(state)
         if s.is_densify_step(it):
@@ -282,6 +287,20 @@ class TopologyStrategy:
         rec["hard_prune"] = s.is_hard_prune_step(it)
         rec["threshold"] = thr
         return drop, reset
+
+    def early_prune_mask(self, state, it, rec):
+        """``drop [M]`` of a quick run's early prune (``Schedule.is_early_prune_step``): the surface
+        triangles whose min vertex opacity is at or below the prune threshold. Only the opacity
+        test: the weight test's threshold would also take the layers behind the front one, still
+        at about the initial opacity; the running max weight is not reset. Counts go to ``rec``."""
+        s = self.sched
+        opacity = opacity_from_logit(state.logits, s.opacity_floor(it))
+        drop = (opacity[state.triangles].min(axis=1) <= s.prune_threshold(it)) & (state.group_of() != SHELL)
+        if drop.all():        # never leave an empty model: keep the heaviest triangle
+            drop[int(np.argmax(state.weights()))] = False
+        rec["pruned_early"] = int(drop.sum())
+        rec["threshold"] = s.prune_threshold(it)
+        return drop
 
     def densify(self, state, it, rec):
         """Split triangles drawn by max weight plus the largest (never past the cap: vertices, and
