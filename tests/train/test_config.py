@@ -184,3 +184,14 @@ def test_a_checkpoint_from_before_the_early_prune_resumes_without_it():
     assert resume_config({"config": saved}).quick_early_prune is True
     with pytest.raises(ValueError, match="quick_early_prune False .*pass --early-prune off to continue it"):
         resume_config({"config": old}, TrainConfig.preset(quick=True))
+
+
+def test_every_on_off_flag_sets_its_switch():
+    """Every boolean field's flag takes on and off (none left out of the conversion to bool)."""
+    switches = [(name, flag) for name, flag, _, kw in cli_options() if kw.get("choices") == ["on", "off"]]
+    bools = {f.name for f in fields(TrainConfig) if isinstance(f.default, bool) and f.metadata.get("flag")}
+    assert {name for name, _ in switches} == bools - {"indoor"} and "quick_early_prune" in bools
+    for name, flag in switches:
+        for word, want in (("on", True), ("off", False)):
+            args = build_parser().parse_args(["train", "procedural:tiny", "--out", "x", flag, word])
+            assert resolve_settings(args)[name] is want, (flag, word)

@@ -32,10 +32,9 @@ from ..train.config import TrainConfig, check_settings, cli_options, load_config
 from .plan import (CPU_MAX_PIXELS, GPU_MAX_SIDE, Plan, cpu_downscale, cpu_iterations, cpu_late_ratio, plan_lines,  # noqa: F401
                    plan_run)
 
-#: flag value -> config value, for the fields whose flag does not take the value itself
-_FROM_FLAG = {**{k: (lambda v: v == "on") for k in ("topology", "shell", "carve", "clear_path", "final_prune",
-                                                    "fill_holes", "fill_hidden", "remove_shards", "color_detail")},
-              "normals": lambda v: str(Path(v).resolve())}
+#: flag value -> config value, for the fields whose flag does not take the value itself (besides the
+#: switches: a flag whose choices are on and off gives a bool)
+_FROM_FLAG = {"normals": lambda v: str(Path(v).resolve())}
 
 def add_parser(sub):
     p = sub.add_parser(
@@ -104,10 +103,11 @@ def resolve_settings(args):
     file_cfg = load_config_file(args.config) if args.config else {}
     quick = args.preset == "quick" if args.preset is not None else bool(file_cfg.get("quick", False))
     settings = {**preset_defaults(quick), **file_cfg, "quick": quick}
-    for name, _, _, _ in cli_options():
+    for name, _, _, kw in cli_options():
         value = getattr(args, name)
         if value is not None:
-            settings[name] = _FROM_FLAG.get(name, lambda v: v)(value)
+            switch = kw.get("choices") == ["on", "off"]
+            settings[name] = value == "on" if switch else _FROM_FLAG.get(name, lambda v: v)(value)
     settings = check_settings(settings, source="flags")           # the flags' types and ranges, before any work
     settings["indoor"] = bool(settings.get("indoor", False))
     if getattr(args, "ablation", None):
