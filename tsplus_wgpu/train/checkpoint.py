@@ -215,8 +215,9 @@ def resume_config(meta, config=None):
     """The config to continue a checkpoint with: the checkpoint's own (fields it lacks at
     their defaults), or ``config`` after checking that it agrees on
     :attr:`TrainConfig.RESUME_KEYS`."""
-    # a checkpoint from before quick_early_prune existed trained without it
-    saved = {**asdict(TrainConfig()), "quick_early_prune": False, **meta["config"]}
+    # a field the checkpoint lacks: what runs trained with before it existed (``absent``), else its default
+    before = {f.name: f.metadata["absent"] for f in fields(TrainConfig) if "absent" in f.metadata}
+    saved = {**asdict(TrainConfig()), **before, **meta["config"]}
     saved["background"] = tuple(saved["background"])
     if config is None:
         return TrainConfig(**saved)

@@ -36,13 +36,17 @@ class ConfigError(UserError, ValueError):
     naming the field (or flag, or config file and key) and what it accepts."""
 
 
-def option(default=MISSING, help="", flag=None, quick=None, default_factory=MISSING, check=None, **argparse):
+def option(default=MISSING, help="", flag=None, quick=None, default_factory=MISSING, check=None, absent=MISSING,
+           **argparse):
     """A :class:`TrainConfig` field: ``default`` (or ``default_factory``), ``help`` (one
     sentence, no default in it: the CLI appends that), ``flag`` (the ``tsplus train`` option,
     None: config files only), ``quick`` (the default under ``--preset quick`` when it differs),
-    ``check`` (a :mod:`.checks` checker: the accepted type and range) and further ``argparse``
-    keywords for the flag (``type``, ``metavar``, ``choices``...)."""
+    ``check`` (a :mod:`.checks` checker: the accepted type and range), ``absent`` (what a
+    checkpoint written before the field existed trained with, where that is not ``default``) and
+    further ``argparse`` keywords for the flag (``type``, ``metavar``, ``choices``...)."""
     meta = dict(help=help, flag=flag, quick=quick, check=check, argparse=argparse)
+    if absent is not MISSING:
+        meta["absent"] = absent
     if default_factory is not MISSING:
         return field(default_factory=default_factory, metadata=meta)
     return field(default=default, metadata=meta)
@@ -194,7 +198,7 @@ class TrainConfig:
               "test, shell exempt): most initial Delaunay faces have lost their opacity by then, and the steps up to "
               "the hard prune no longer draw them (the cup's default run: 248,588 of 357,349 triangles at iteration "
               "229, training 7 % shorter; docs/measurements.md)", flag="--early-prune", check=boolean(),
-        choices=["on", "off"])
+        absent=False, choices=["on", "off"])
     quick_opacity_lr_scale: float = option(
         10.0, "with quick, the opacity learning rate is multiplied by this (a 300-iteration run has 1/100 of the "
               "paper's steps: at 0.03 a logit moves at most 1.2 before the first scaled prune)", check=real(0.0, lo_open=True))
