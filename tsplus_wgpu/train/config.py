@@ -243,6 +243,12 @@ class TrainConfig:
               "(tsplus_wgpu/train/final.py, floaters.py; +0.2 to +0.9 dB held-out on the four shared real captures, "
               "the path another +0.5 to +1.3 dB on lund)",
         flag="--remove-shards", check=boolean(), choices=["on", "off"])
+    remove_far: bool = option(
+        True, "with --remove-shards on: also remove the surface triangles in front of what the training photos show "
+              "far away (the sky): a pixel whose neighbouring views match it better along its direction alone than "
+              "at the mesh's depth there is far, and a triangle that draws mostly such pixels goes "
+              "(tsplus_wgpu/train/far_field.py; docs/measurements.md)",
+        flag="--remove-far", check=boolean(), choices=["on", "off"])
     color_detail: bool = option(
         True, "at the end, subdivide the exported mesh where its triangles are large on screen (over 16, 8, 4 or 2 "
               "pixels, within --detail-budget) so the fitted vertex colours carry the photos' texture; the level is "

@@ -9,7 +9,8 @@ shell's triangles (``config.fill_holes``, :func:`backdrop_fill`), and so, just b
 trained shell, is what that shell lost behind the surfaces (``config.fill_hidden``); shards, large triangles that
 draw the training views badly, and the floaters on the training cameras' path
 (:func:`~.floaters.path_floaters`) are removed and the fill and the colours made again
-(``config.remove_shards``, :func:`find_shards`); the mesh is subdivided where the held-back
+(``config.remove_shards``, :func:`find_shards`), with the surface triangles in front of what the
+photos show far away (``config.remove_far``, :mod:`.far_field`); the mesh is subdivided where the held-back
 training views say finer colours draw them better (``config.color_detail``, :mod:`.detail`). The vertex colours are
 either the SH DC term (``config.mesh_colors = 'dc'``) or fitted to the training photos through
 the exported, depth-tested mesh (``'fit'``, :func:`~tsplus_wgpu.render.mesh_fit.fit_vertex_colors`):
@@ -26,6 +27,7 @@ import numpy as np
 from ..kernels.loss import supersampled_camera
 from ..io.export import dc_colors
 from .schedules import FINAL_PRUNE_WEIGHT
+from .far_field import far_occluders
 from .floaters import path_floaters
 from .detail import LEVEL_PX, VALIDATION_SUPERSAMPLE, angular_size, colour_detail, with_midpoints
 from .shell import SHELL, SURFACE, background_shell, beyond_views, shell_radius
@@ -89,7 +91,7 @@ def _planned(t):
     detail = v * (len(LEVEL_PX) + 2) if cfg.color_detail and fit else 0
     total = (v if cfg.final_prune else 0) + export + detail + v     # the cleanup, an export, the detail, the winding
     if cfg.remove_shards:
-        total += v + export                                         # the shards' pass, the export again
+        total += v + export + (v if cfg.remove_far else 0)          # the shards' pass (and the far field's), the export again
     return total, export, detail
 
 
@@ -103,20 +105,24 @@ def final_mesh(trainer, progress=None):
         total, export, detail = _planned(t)
         bar.plan(total)
         keep = cleanup_mask(t)
-        t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0)
+        t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0, far=0)
         mesh = _exported(t, keep)
         if cfg.remove_shards and len(mesh[2]):
             floaters = keep & path_floaters(t.positions_frame(), t.triangles_host, t.groups,
                                             [t.scene.cameras[v] for v in t.train_views])
             shards = find_shards(t, *mesh) | floaters
             t.final_info["floaters"] = int(floaters.sum())
+            if cfg.remove_far:
+                far = ~shards & find_far_occluders(t, mesh[0], mesh[2], mesh[4])
+                t.final_info["far"] = int(far.sum())
+                shards |= far
             if shards.any():
                 t.final_info["shards"] = int(shards.sum())
                 mesh = _exported(t, keep & ~shards)
             else:
                 bar.replan(-export)
         elif cfg.remove_shards:
-            bar.replan(-(len(t.train_views) + export))
+            bar.replan(-(len(t.train_views) * (2 if cfg.remove_far else 1) + export))
         pos_frame, pos_world, tris, colors, _ = mesh
         if cfg.color_detail and cfg.mesh_colors == "fit":
             start = bar.done
@@ -257,12 +263,31 @@ def find_shards(trainer, pos_frame, pos_world, tris, colors, source):
         total, drawn = total + float(r[ok].sum()), drawn + int(ok.sum())
     mean_err = np.where(count > 0, err / np.maximum(count, 1), 0.0)
     edge, dist = angular_size(pos_frame, tris, [t.scene.cameras[v] for v in t.train_views])
-    groups = t.groups if t.groups is not None else np.zeros(t.m, np.int8)
-    surface = (source >= 0) & (groups[np.maximum(source, 0)] == SURFACE)
-    bad = surface & (edge > SHARD_ANGLE * dist) & (mean_err > SHARD_RESIDUAL * total / max(drawn, 1))
+    bad = _surface(t, source) & (edge > SHARD_ANGLE * dist) & (mean_err > SHARD_RESIDUAL * total / max(drawn, 1))
     out = np.zeros(t.m, bool)
     out[source[bad]] = True
     return out
+
+
+def find_far_occluders(trainer, pos_frame, tris, source):
+    """``[M]`` bool over the trainer's triangles: the surface triangles of the exported mesh
+    ``(pos_frame, tris)`` (``source``: the trainer's triangle each came from, -1 for the fill) in
+    front of what the training photos show far away (:mod:`.far_field`)."""
+    t = trainer
+    _progress(t).stage("far field")
+    views = list(t.train_views)
+    front = far_occluders(t.mesh_renderer, pos_frame, tris, [t.scene.cameras[v] for v in views],
+                          [t.scene.images[v] for v in views], t.config.near, tick=_progress(t).tick)
+    out = np.zeros(t.m, bool)
+    out[source[front & _surface(t, source)]] = True
+    return out
+
+
+def _surface(t, source):
+    """``[F]`` bool: the exported triangles (``source``: the trainer's triangle each came from, -1
+    for the fill) that are the trainer's surface triangles."""
+    groups = t.groups if t.groups is not None else np.zeros(t.m, np.int8)
+    return (source >= 0) & (groups[np.maximum(source, 0)] == SURFACE)
 
 
 def backdrop_fill(trainer, positions, triangles, occluders=None):
