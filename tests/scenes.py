@@ -100,3 +100,31 @@ def merge_meshes(*parts):
         fs.append(np.asarray(pf) + off)
         off += len(pv)
     return np.concatenate(vs), np.concatenate(fs)
+
+
+def write_colmap_scene(root, views=4, images="pics", missing=(), points=50, size="tiny"):
+    """A COLMAP text scene of ``procedural:<size>``'s first ``views`` views, the images in
+    ``root/<images>`` (``missing``: views whose image is left out) and its first ``points`` points."""
+    from pathlib import Path
+    from scipy.spatial.transform import Rotation
+    from tsplus_wgpu.data.procedural import load_procedural
+    from tsplus_wgpu.io.atomic import write_image
+    sc = load_procedural(size)
+    root = Path(root)
+    sparse = root / "sparse" / "0"
+    sparse.mkdir(parents=True)
+    (root / images).mkdir()
+    c0 = sc.cameras[0]
+    (sparse / "cameras.txt").write_text(f"1 PINHOLE {c0.width} {c0.height} {c0.fx} {c0.fy} {c0.cx} {c0.cy}\n")
+    lines = []
+    for i, c in enumerate(sc.cameras[:views]):
+        x, y, z, w = Rotation.from_matrix(c.world_to_camera[:3, :3]).as_quat()
+        t = c.world_to_camera[:3, 3]
+        lines += [f"{i + 1} {w} {x} {y} {z} {t[0]} {t[1]} {t[2]} 1 view_{i:02d}.png", ""]
+        if i not in missing:
+            write_image(root / images / f"view_{i:02d}.png", sc.images[i])
+    (sparse / "images.txt").write_text("\n".join(lines) + "\n")
+    (sparse / "points3D.txt").write_text("".join(
+        f"{k + 1} {p[0]} {p[1]} {p[2]} {int(c[0] * 255)} {int(c[1] * 255)} {int(c[2] * 255)} 0.5\n"
+        for k, (p, c) in enumerate(zip(sc.points[:points], sc.point_colors[:points]))))
+    return root

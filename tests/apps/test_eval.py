@@ -180,3 +180,25 @@ def test_eval_of_a_run_holds_out_what_the_run_held_out(gt_mesh, tmp_path, capsys
     (run / "metrics.json").write_text(json.dumps({"held_out_views": test, "held_out_are_training_views": False}))
     views, printed = evaluate()
     assert views == test and "as the run evaluated" not in printed
+
+
+def test_eval_of_a_run_on_its_own_scene_takes_its_downscale(gt_mesh, tmp_path, capsys):
+    """`tsplus eval RUN SCENE` with the run's own scene draws the held-out views at the size the run
+    trained and evaluated them (its --downscale), as `tsplus eval RUN` does, and says so; another
+    --downscale, or another scene, stands as given."""
+    from scenes import write_colmap_scene
+    scene = write_colmap_scene(tmp_path / "scene", views=12, images="images", size="small")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "mesh.ply").write_bytes(gt_mesh.read_bytes())
+    (run / "config.json").write_text(json.dumps({"extra": {"scene": str(scene.resolve()), "downscale": 2}}))
+
+    def evaluate(*extra):
+        out = tmp_path / f"ev{len(list(tmp_path.iterdir()))}"
+        assert main(["eval", str(run), *extra, "--no-splat", "--supersample", "1", "--out", str(out)]) == 0
+        return capsys.readouterr().out
+    for given in ([], [str(scene)], [str(tmp_path / "." / "scene")]):
+        printed = evaluate(*given)
+        assert "80x60" in printed, printed
+        assert ("the run's own --downscale 2" in printed) == bool(given)
+    assert "160x120" in evaluate(str(scene), "--downscale", "1")

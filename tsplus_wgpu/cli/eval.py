@@ -39,7 +39,8 @@ def add_parser(sub):
     p.add_argument("--views", choices=["test", "train", "all"], default="test",
                    help="which views (default test: the held-out ones; training views when there are none)")
     p.add_argument("--downscale", type=int, default=None,
-                   help="shrink the scene's images (default 1, or the run's when SCENE is taken from the run)")
+                   help="shrink the scene's images (default 1, or the run's own when SCENE is the scene it was trained on "
+                        "or is left out)")
     p.add_argument("--write-images", dest="write_images", type=int, default=4, metavar="N",
                    help="ground truth | render | error images to write (default 4)")
     add_images_arg(p)
@@ -104,6 +105,18 @@ def _run_scene(args, run_arg, info):
     return str(scene), downscale, images
 
 
+def _is_runs_scene(info, scene_arg):
+    """Whether ``scene_arg`` names the scene the run (``info``: :func:`~tsplus_wgpu.apps.runs.load_run`'s)
+    was trained on: the same argument, or the same folder."""
+    scene = info.get("scene")
+    if not scene:
+        return False
+    if str(scene) == str(scene_arg):
+        return True
+    a, b = Path(str(scene)), Path(str(scene_arg))
+    return a.exists() and b.exists() and a.resolve() == b.resolve()
+
+
 def _as_the_run_held_out(run_arg, info, scene_arg, views):
     """``(views, notes)``: the held-out ``views`` less those the run left out of its own evaluation
     (a held-out photo whose pose disagrees with its matches, :mod:`~tsplus_wgpu.data.heldout_poses`),
@@ -112,8 +125,7 @@ def _as_the_run_held_out(run_arg, info, scene_arg, views):
     so without this the two figures of one run could differ. Only for the run's own scene."""
     if run_arg is None or not Path(run_arg).is_dir() or not info.get("scene"):
         return views, []
-    same = str(info["scene"]) == str(scene_arg) or (Path(str(info["scene"])).exists() and Path(str(scene_arg)).exists()
-                                                   and Path(str(info["scene"])).resolve() == Path(str(scene_arg)).resolve())
+    same = _is_runs_scene(info, scene_arg)
     try:
         m = json.loads((Path(run_arg) / "metrics.json").read_text())
         rec = {int(v) for v in m["held_out_views"]}
@@ -159,6 +171,12 @@ def run(args):
             scene_arg, downscale, images = _run_scene(args, run_arg, info)
             print(f"scene of the run: {scene_arg}" + (f" (--downscale {downscale})" if downscale != 1 else "")
                   + (f" (--images {images})" if images else ""))
+        elif _is_runs_scene(info, scene_arg):      # at the size and from the images it was trained on
+            _, downscale, images = _run_scene(args, run_arg, info)
+            own = [f"--downscale {downscale}"] if args.downscale is None and downscale != 1 else []
+            own += [f"--images {images}"] if args.images is None and images else []
+            if own:
+                print(f"the run's own {' '.join(own)} (its scene; give them to choose others)")
     scene = load_cli_scene(scene_arg, downscale, images=images,     # prints its warnings
                            points=TRAIN_POINTS[args.points] if args.baseline else "auto")
     if args.baseline:
