@@ -58,13 +58,20 @@ def triangle_ids(mesh_renderer, positions, triangles, camera: Camera, near, uplo
     centre of ``camera`` (-1: none). Triangles with a vertex at ``z <= near`` are not drawn,
     as in :meth:`MeshRenderer.render`. ``uploaded``: :func:`id_mesh` of the same mesh, made
     here when None (pass it when drawing one mesh from several views)."""
+    return ids_and_depth(mesh_renderer, positions, triangles, camera, near, uploaded)[0]
+
+
+def ids_and_depth(mesh_renderer, positions, triangles, camera: Camera, near, uploaded=None):
+    """``(ids [H, W] int64, depth [H, W] float32)``: :func:`triangle_ids` and the camera z of the
+    triangle drawn at each pixel centre (0 where none), from the same id pass."""
     if uploaded is None:
         uploaded = id_mesh(mesh_renderer, positions, triangles)
     res = mesh_renderer.render(uploaded, camera, near=near)
     img = res.image                       # float32: whole numbers below ID_BASE, exact
     out = np.rint(img[..., 0]).astype(np.int64) + ID_BASE * np.rint(img[..., 1]).astype(np.int64)
-    out[res.coverage <= 0] = -1
-    return out
+    drawn = res.coverage > 0
+    out[~drawn] = -1
+    return out, np.where(drawn, res.depth, 0.0).astype(np.float32)
 
 
 def _drawn(ids, count):

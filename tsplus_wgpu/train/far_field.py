@@ -138,7 +138,7 @@ def far_occluders(mesh_renderer, positions, triangles, cameras, images, near, ti
     """``[F]`` bool over ``triangles`` (of the mesh with ``positions``, drawn as ``tsplus
     eval`` draws it): the triangles in front of what the views ``(cameras, images)`` show far
     away (module docstring). ``tick``: called after each view."""
-    from ..render.mesh_fit import ID_BASE, id_mesh
+    from ..render.mesh_fit import id_mesh, ids_and_depth
     tris = np.asarray(triangles, np.int64).reshape(-1, 3)
     counts = np.zeros((3, len(tris)))
     if not len(tris) or len(cameras) < 2:
@@ -146,10 +146,8 @@ def far_occluders(mesh_renderer, positions, triangles, cameras, images, near, ti
     uploaded = id_mesh(mesh_renderer, positions, tris)
     others = nearest_views([c.center for c in cameras])
     for a, cam in enumerate(cameras):
-        res = mesh_renderer.render(uploaded, cam, near=near)
-        ids = np.rint(res.image[..., 0]).astype(np.int64) + ID_BASE * np.rint(res.image[..., 1]).astype(np.int64)
-        drawn = res.coverage > 0
-        depth = np.where(drawn, res.depth, 0.0)
+        ids, depth = ids_and_depth(mesh_renderer, positions, tris, cam, near, uploaded)
+        drawn = ids >= 0
         far, near_px = far_pixels(cam, images[a], depth, [(cameras[b], images[b]) for b in others[a]], near)
         for row, which in enumerate((far, near_px, drawn)):
             counts[row] += np.bincount(ids[drawn & which], minlength=len(tris))
