@@ -171,3 +171,11 @@ def test_the_end_of_training_removes_what_the_test_names(renderer, monkeypatch):
     (n_off, info_off, surface), (n_on, info_on, _) = out[False], out[True]
     assert info_off["far"] == 0 and 0 < info_on["far"] <= surface
     assert info_on["shards"] == surface and n_on < n_off     # every surface triangle gone, as a shard or as far
+
+
+def test_a_single_view_finds_nothing_and_still_counts_its_view(mesh_renderer):
+    cams, pos, tri, col, _ = _scene()
+    photos = _photos(mesh_renderer, cams, pos, tri, col)
+    ticks = []
+    mask = far_occluders(mesh_renderer, pos, tri, cams[:1], photos[:1], 1e-3, tick=lambda: ticks.append(1))
+    assert not mask.any() and len(ticks) == 1

@@ -54,13 +54,12 @@ def pixel_rays(camera):
 
 
 def project(camera, points):
-    """``(u, v, z)``: the pixel coordinates (centres at +0.5) and camera z of world ``points``
-    ``[..., 3]``; u and v are NaN at or behind the camera plane."""
-    m = np.asarray(camera.world_to_camera, np.float64)
-    xc = points @ m[:3, :3].T + m[:3, 3]
-    z = xc[..., 2]
-    zs = np.where(z > 0, z, np.nan)
-    return camera.fx * xc[..., 0] / zs + camera.cx, camera.fy * xc[..., 1] / zs + camera.cy, z
+    """``(u, v, z)``: :meth:`~tsplus_wgpu.types.Camera.project` of world ``points`` ``[..., 3]``
+    in their shape, u and v NaN at or behind the camera plane."""
+    shape = points.shape[:-1]
+    uv, z = camera.project(points.reshape(-1, 3))
+    uv[z <= 0] = np.nan
+    return uv[:, 0].reshape(shape), uv[:, 1].reshape(shape), z.reshape(shape)
 
 
 def sample(image, u, v):
@@ -141,7 +140,7 @@ def far_occluders(mesh_renderer, positions, triangles, cameras, images, near, ti
     from ..render.mesh_fit import id_mesh, ids_and_depth
     tris = np.asarray(triangles, np.int64).reshape(-1, 3)
     counts = np.zeros((3, len(tris)))
-    if not len(tris) or len(cameras) < 2:
+    if not len(tris):
         return np.zeros(len(tris), bool)
     uploaded = id_mesh(mesh_renderer, positions, tris)
     others = nearest_views([c.center for c in cameras])
