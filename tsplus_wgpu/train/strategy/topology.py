@@ -91,6 +91,12 @@ from . import ops
 from .cap import VertexCap
 
 
+def _keep_one(drop, weights):
+    """Never leave an empty model: where ``drop`` takes every triangle, keep the heaviest (in place)."""
+    if drop.all():
+        drop[int(np.argmax(weights))] = False
+
+
 class TopologyStrategy:
     """Prune / densify hooks for :class:`~..trainer.Trainer` (see the module docstring).
 
@@ -255,8 +261,7 @@ class TopologyStrategy:
         drop = np.zeros(len(tris), bool)
         reset = False
         if "opacity" in criteria:
-            opacity = opacity_from_logit(state.logits, s.opacity_floor(it))
-            drop = opacity[tris].min(axis=1) <= thr                 # the hard prune's criterion
+            drop = self.low_opacity(state, it)                      # the hard prune's criterion
             rec["pruned_opacity"] = int(drop.sum())
         if "weight" not in criteria:
             rec["weight_prune_skipped"] = "weight_prune off"
@@ -282,8 +287,7 @@ class TopologyStrategy:
         big[~drop] = ops.projected_sizes(state.positions, tris[~drop], cameras, self.near) > s.prune_max_size()
         rec["pruned_size"] = int(big.sum())
         drop |= big
-        if drop.all():        # never leave an empty model: keep the heaviest triangle
-            drop[int(np.argmax(mw))] = False
+        _keep_one(drop, mw)
         rec["hard_prune"] = s.is_hard_prune_step(it)
         rec["threshold"] = thr
         return drop, reset
@@ -293,14 +297,18 @@ class TopologyStrategy:
         triangles whose min vertex opacity is at or below the prune threshold. Only the opacity
         test: the weight test's threshold would also take the layers behind the front one, still
         at about the initial opacity; the running max weight is not reset. Counts go to ``rec``."""
+        drop = self.low_opacity(state, it) & (state.group_of() != SHELL)
+        _keep_one(drop, state.weights())
+        rec["pruned_early"] = int(drop.sum())
+        rec["threshold"] = self.sched.prune_threshold(it)
+        return drop
+
+    def low_opacity(self, state, it):
+        """``[M]`` bool: the triangles whose min vertex opacity is at or below the prune threshold
+        at ``it`` (the hard prune's criterion)."""
         s = self.sched
         opacity = opacity_from_logit(state.logits, s.opacity_floor(it))
-        drop = (opacity[state.triangles].min(axis=1) <= s.prune_threshold(it)) & (state.group_of() != SHELL)
-        if drop.all():        # never leave an empty model: keep the heaviest triangle
-            drop[int(np.argmax(state.weights()))] = False
-        rec["pruned_early"] = int(drop.sum())
-        rec["threshold"] = s.prune_threshold(it)
-        return drop
+        return opacity[state.triangles].min(axis=1) <= s.prune_threshold(it)
 
     def densify(self, state, it, rec):
         """Split triangles drawn by max weight plus the largest (never past the cap: vertices, and
