@@ -5,6 +5,9 @@
 // Two learning rates in one group (the SH, [N, K, 3]: DC and the rest): element k of the group
 // takes lr where period is 0 or (phase + k) mod period < head, else lr_tail (phase: where this
 // dispatch's first element lies in the group, mod period).
+// A scale per item (scale_stride > 0: element k belongs to item (scale_elem + k) / scale_stride
+// of the group, bound from item scale_first): its learning rate times scale[item - scale_first]
+// (the positions' step by depth, shaders/optim/depth_scale.wgsl; scale_stride 0: no scale).
 // One element per invocation; grids beyond 65535 workgroups are 2-D (linear_group).
 #import dispatch
 
@@ -19,7 +22,7 @@ struct AdamParams {
     period: u32,
     head: u32,
     phase: u32,
-    _pad0: u32,
+    scale_stride: u32,
     lr_tail: f32,
     lr: f32,
     beta1: f32,
@@ -29,6 +32,8 @@ struct AdamParams {
     eps: f32,
     bias1: f32,
     bias2: f32,
+    scale_elem: u32,
+    scale_first: u32,
 }
 
 @group(0) @binding(0) var<uniform> ap: AdamParams;
@@ -36,6 +41,7 @@ struct AdamParams {
 @group(0) @binding(2) var<storage, read> grad: array<f32>;
 @group(0) @binding(3) var<storage, read_write> exp_avg: array<f32>;
 @group(0) @binding(4) var<storage, read_write> exp_avg_sq: array<f32>;
+@group(0) @binding(5) var<storage, read> scale: array<f32>;
 
 @compute @workgroup_size(256)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
@@ -45,7 +51,10 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         return;
     }
     let i = ap.offset + k;
-    let lr = select(ap.lr_tail, ap.lr, ap.period == 0u || (ap.phase + k) % max(ap.period, 1u) < ap.head);
+    var lr = select(ap.lr_tail, ap.lr, ap.period == 0u || (ap.phase + k) % max(ap.period, 1u) < ap.head);
+    if (ap.scale_stride != 0u) {
+        lr = lr * scale[(ap.scale_elem + k) / ap.scale_stride - ap.scale_first];
+    }
     let g = grad[i];
     let m = ap.beta1 * exp_avg[i] + ap.one_minus_beta1 * g;
     let v = ap.beta2 * exp_avg_sq[i] + ap.one_minus_beta2 * (g * g);

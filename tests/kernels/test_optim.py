@@ -1,11 +1,11 @@
 """shaders/optim/: each kernel alone against its float64 twin (tsplus_wgpu.reference.optim):
-train_activate, train_grads, opacity_reg (and its per-vertex sum), adam."""
+train_activate, train_grads, opacity_reg (and its per-vertex sum), depth_scale, adam."""
 
 import numpy as np
 import pytest
 
 from tsplus_wgpu.gpu.stage import Scratch
-from tsplus_wgpu.kernels.optim import Adam, OpacityReg, OpacityRegGradient, TrainActivate, TrainGrads
+from tsplus_wgpu.kernels.optim import Adam, DepthScale, OpacityReg, OpacityRegGradient, TrainActivate, TrainGrads
 import tsplus_wgpu.reference.optim as twin
 from scenes import submit as _run
 
@@ -166,6 +166,48 @@ def test_adam_two_rates_in_ranges(ctx, adam, n, k, offset, max_binding):
     assert np.array_equal(out[:offset], p[:offset])               # before the group: untouched
 
 
+@pytest.mark.parametrize("n,c,reach", [(1, 1, 1.0), (300, 7, 1.0), (5000, 60, 0.25)])
+def test_depth_scale(ctx, n, c, reach):
+    """Vertices from on a camera centre (scale 0) to far beyond reach (1)."""
+    rng = np.random.default_rng(n + c)
+    centres = rng.normal(scale=2.0, size=(c, 3))
+    p = centres[rng.integers(0, c, n)] + rng.normal(size=(n, 3)) * 10.0 ** rng.uniform(-3, 1, (n, 1))
+    p[0] = centres[0]
+    p = p.astype(np.float32)
+    stage, out = DepthScale(ctx), ctx.buffer(4 * n)
+    _run(ctx, lambda enc: stage(enc, ctx.upload(p), stage.centres(centres.astype(np.float32)), out, n, c, reach))
+    got, ref = ctx.read(out, np.float32, n), twin.depth_scale(p, centres.astype(np.float32), reach)
+    np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-6)
+    assert got[0] == 0.0 and (n == 1 or 0 < (ref < 1).sum() < n)
+
+
+@pytest.mark.parametrize("n,offset,max_binding", [(700, 0, None), (700, 0, 1024), (333, 48, 2048), (2, 0, None)])
+def test_adam_scale_per_vertex(ctx, adam, n, offset, max_binding):
+    """The positions' step by depth: [N, 3] elements, one scale per 3 (per vertex), in ranges with
+    max_binding; a scale of 0 stops its vertex, and every step is the twin's."""
+    size = offset + 3 * n
+    rng = np.random.default_rng(n + offset)
+    p = rng.standard_normal(size).astype(np.float32)
+    sc = rng.uniform(0.0, 1.0, n).astype(np.float32)
+    sc[0] = 0.0
+    bp, bm, bv = _state(ctx, p)
+    rp, rm, rv = p[offset:].astype(np.float64), np.zeros(3 * n), np.zeros(3 * n)
+    for step in (1, 2, 3):
+        g = rng.standard_normal(size).astype(np.float32)
+        enc = ctx.device.create_command_encoder()
+        adam.record(enc, bp, ctx.upload(g), bm, bv, 3 * n, 0.01, step, offset=offset, max_binding=max_binding,
+                    scale=ctx.upload(sc), stride=3)
+        ctx.queue.submit([enc.finish()])
+        rp, rm, rv = twin.adam(rp, g[offset:], rm, rv, 0.01, step, scale=sc, stride=3)
+        if step == 1:   # the first step moves every element by its lr times its vertex's scale
+            moved = np.abs(ctx.read(bp, np.float32, size)[offset:] - p[offset:]).reshape(n, 3)
+            np.testing.assert_allclose(moved, 0.01 * np.repeat(sc[:, None], 3, 1), rtol=2e-3, atol=2e-7)
+    out = ctx.read(bp, np.float32, size)
+    assert _rel(out[offset:], rp) <= 1e-6
+    assert np.array_equal(out[offset:offset + 3], p[offset:offset + 3])      # scale 0: not moved
+    assert np.array_equal(out[:offset], p[:offset])
+
+
 def test_adam_defaults_are_the_shaders():
     assert (twin.BETA1, twin.BETA2, twin.ADAM_EPS) == (0.9, 0.999, 1e-15)
 
@@ -213,5 +255,9 @@ def test_adam_bad_arguments(ctx, adam):
         adam.record(enc, b, b, b, b, 17, 0.1, 1)            # buffer too small
     with pytest.raises(ValueError):
         adam.record(enc, b, b, b, b, 4, 0.1, 0)             # step is 1-based
+    with pytest.raises(ValueError):
+        adam.record(enc, b, b, b, b, 16, 0.1, 1, scale=ctx.buffer(16), stride=3)   # 6 scales needed, 4 held
+    with pytest.raises(ValueError):
+        adam.record(enc, b, b, b, b, 4, 0.1, 1, scale=b, stride=0)
     with pytest.raises(ValueError):
         twin.adam(np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), 0.1, 0)

@@ -11,8 +11,11 @@
   gradient per corner; :class:`OpacityRegGradient` sums the corners per vertex with
   :class:`~tsplus_wgpu.kernels.reduce.SegmentSum` over the corners sorted by vertex (sorted
   once per topology on the host).
+* ``depth_scale`` (:class:`DepthScale`): per vertex, ``min(1, d / reach)`` with ``d`` its
+  distance to the nearest training camera: the scale of its position learning rate.
 * ``adam`` (:class:`Adam`): one Adam step of one parameter group (two learning rates in one
-  group where its elements alternate: the SH's DC and the rest, per vertex).
+  group where its elements alternate: the SH's DC and the rest, per vertex; a scale per item
+  where given: the positions' step by depth).
 
 The per-vertex and per-element kernels take arrays larger than one storage binding a range at a
 time (:mod:`tsplus_wgpu.gpu.chunks`).
@@ -96,6 +99,24 @@ def _bias(beta, step):
     return 1.0 - beta ** int(step)
 
 
+class DepthScale(Stage):
+    """Per vertex, ``min(1, distance to the nearest of centres / reach)``: the positions' step
+    by depth (the shader's comment). ``centres``: a buffer of ``[C]`` vec4 (xyz)."""
+    stage = "depth_scale"
+
+    def __call__(self, enc, positions, centres, scale, n, num_centres, reach=1.0, profiler=None):
+        if n == 0:
+            return
+        sp = self.uniform("ScaleParams", n=int(n), num_centres=int(num_centres), reach=float(reach))
+        self.dispatch(enc, self.groups(n), dict(sp=sp, positions=positions, centres=centres, scale=scale), profiler)
+
+    def centres(self, points, label="depth_scale_centres"):
+        """``points [C, 3]`` uploaded as the kernel's vec4 centres."""
+        c = np.zeros((max(1, len(points)), 4), np.float32)
+        c[:len(points), :3] = np.asarray(points, np.float64).reshape(-1, 3)
+        return self.ctx.upload(c, label)
+
+
 class Adam(Stage):
     """Records Adam steps on flat f32 buffers (param, grad, exp_avg, exp_avg_sq).
 
@@ -111,46 +132,63 @@ class Adam(Stage):
         self.beta1 = float(self.const("BETA1") if beta1 is None else beta1)
         self.beta2 = float(self.const("BETA2") if beta2 is None else beta2)
         self.eps = float(self.const("ADAM_EPS") if eps is None else eps)
+        self._no_scale = ctx.buffer(16, "adam_no_scale")     # bound, never read, without a scale
 
     def record(self, enc, param, grad, exp_avg, exp_avg_sq, n, lr, step, offset=0, profiler=None, max_dim=None,
-               lr_tail=None, period=0, head=0, max_binding=None):
+               lr_tail=None, period=0, head=0, max_binding=None, scale=None, stride=1):
         """One step of one group. ``step`` is the group's 1-based step count (bias correction).
         ``max_dim`` overrides the per-dimension workgroup limit (tests of the 2-D grid).
         ``period``, ``head``, ``lr_tail``: element ``offset + k`` takes ``lr`` where ``k mod
-        period < head``, else ``lr_tail`` (period 0: ``lr`` everywhere). Buffers larger
+        period < head``, else ``lr_tail`` (period 0: ``lr`` everywhere). ``scale``: a buffer of
+        one f32 per ``stride`` elements of the group (e.g. per vertex of the positions, stride
+        3): element ``offset + k``'s rate is also times ``scale[k // stride]``. Buffers larger
         than one binding (or than ``max_binding`` bytes: tests) are stepped a range at a time."""
-        n, offset, period = int(n), int(offset), int(period)
+        n, offset, period, stride = int(n), int(offset), int(period), int(stride)
         if n < 0 or offset < 0:
             raise ValueError(f"Adam: n and offset must be >= 0, got n={n}, offset={offset}")
         if int(step) < 1:
             raise ValueError(f"Adam: step is 1-based, got {step!r}")
+        if stride < 1:
+            raise ValueError(f"Adam: stride must be >= 1, got {stride}")
         for name, buf in (("param", param), ("grad", grad), ("exp_avg", exp_avg), ("exp_avg_sq", exp_avg_sq)):
             if buf.size < 4 * (offset + n):
                 raise ValueError(f"Adam: buffer {name} holds {buf.size // 4} floats, needs {offset + n}")
+        if scale is not None and scale.size < 4 * -(-n // stride):
+            raise ValueError(f"Adam: buffer scale holds {scale.size // 4} floats, needs {-(-n // stride)}")
         if n == 0:
             return
         bufs = dict(param=param, grad=grad, exp_avg=exp_avg, exp_avg_sq=exp_avg_sq)
         const = dict(period=period, head=int(head), lr=lr, lr_tail=lr if lr_tail is None else lr_tail,
                      beta1=self.beta1, beta2=self.beta2, one_minus_beta1=1.0 - self.beta1,
                      one_minus_beta2=1.0 - self.beta2, eps=self.eps, bias1=_bias(self.beta1, step),
-                     bias2=_bias(self.beta2, step))
+                     bias2=_bias(self.beta2, step), scale_stride=0 if scale is None else stride)
         max_dim = max_dim or self.ctx.limits["max-compute-workgroups-per-dimension"]
         cap = binding_bytes(self.ctx) if max_binding is None else int(max_binding)
-        if max(b.size for b in bufs.values()) <= cap:
-            ap = self.uniform("AdamParams", offset=offset, n=n, phase=0, **const)
-            self.dispatch(enc, grid(self.groups(n), max_dim), dict(ap=ap, **bufs), profiler)
-            return
-        # ranges of at most cap - 256 bytes, each bound from the 256-byte boundary below it
         align = int(self.ctx.limits["min-storage-buffer-offset-alignment"])
-        per = (cap - align) // 4
+        whole = max(b.size for b in bufs.values()) <= cap and (scale is None or scale.size <= cap)
+        # ranges of at most cap - 256 bytes, each bound from the 256-byte boundary below it
+        per = n if whole else (cap - align) // 4
         for start in range(offset, offset + n, per):
             count = min(per, offset + n - start)
-            first = 4 * start // align * align
+            first = 0 if whole else 4 * start // align * align
             within = start - first // 4
-            ap = self.uniform("AdamParams", offset=within, n=count, phase=(start - offset) % max(period, 1), **const)
+            sbuf, sfields = self._scale_range(scale, start - offset, count, stride, whole, align)
+            ap = self.uniform("AdamParams", offset=within, n=count, phase=(start - offset) % max(period, 1),
+                              **const, **sfields)
             size = 4 * (within + count)
-            self.dispatch(enc, grid(self.groups(count), max_dim),
-                          dict(ap=ap, **{key: Slice(b, first, size) for key, b in bufs.items()}), profiler)
+            bound = bufs if whole else {key: Slice(b, first, size) for key, b in bufs.items()}
+            self.dispatch(enc, grid(self.groups(count), max_dim), dict(ap=ap, scale=sbuf, **bound), profiler)
+
+    def _scale_range(self, scale, elem, count, stride, whole, align):
+        """The scale's binding for the group's elements ``[elem, elem + count)`` and its uniform
+        fields (the items from the 256-byte boundary below the first one's)."""
+        if scale is None:
+            return self._no_scale, dict(scale_elem=0, scale_first=0)
+        if whole:
+            return scale, dict(scale_elem=elem, scale_first=0)
+        lo, hi = elem // stride, (elem + count - 1) // stride + 1
+        first = 4 * lo // align * align
+        return Slice(scale, first, 4 * hi - first), dict(scale_elem=elem, scale_first=first // 4)
 
 
-__all__ = ["TrainActivate", "TrainGrads", "OpacityReg", "OpacityRegGradient", "Adam"]
+__all__ = ["TrainActivate", "TrainGrads", "OpacityReg", "OpacityRegGradient", "DepthScale", "Adam"]

@@ -74,11 +74,24 @@ def _bias(beta, step):
     return 1.0 - beta ** int(step)
 
 
-def adam(param, grad, m, v, lr, step, beta1=BETA1, beta2=BETA2, eps=ADAM_EPS):
-    """One Adam step in float64. Returns new ``(param, m, v)``; ``step`` is 1-based."""
+def depth_scale(positions, centres, reach=1.0):
+    """``[N]`` float64: ``min(1, distance to the nearest of centres [C, 3] / reach)`` per vertex."""
+    p = np.asarray(positions, np.float64).reshape(-1, 3)
+    c = np.asarray(centres, np.float64).reshape(-1, 3)
+    best = np.full(len(p), np.inf)
+    for x in c:
+        best = np.minimum(best, ((p - x) ** 2).sum(-1))
+    return np.minimum(1.0, np.sqrt(best) / float(reach))
+
+
+def adam(param, grad, m, v, lr, step, beta1=BETA1, beta2=BETA2, eps=ADAM_EPS, scale=None, stride=1):
+    """One Adam step in float64. Returns new ``(param, m, v)``; ``step`` is 1-based. ``scale``:
+    one factor per ``stride`` elements, times the learning rate (the kernel's scale)."""
     if int(step) < 1:
         raise ValueError(f"step: expected >= 1 (1-based), got {step!r}")
     p, g = np.asarray(param, np.float64), np.asarray(grad, np.float64)
+    if scale is not None:
+        lr = lr * np.repeat(np.asarray(scale, np.float64), int(stride))[:len(p)]
     m = beta1 * np.asarray(m, np.float64) + (1.0 - beta1) * g
     v = beta2 * np.asarray(v, np.float64) + (1.0 - beta2) * g * g
     p = p - lr * (m / _bias(beta1, step)) / (np.sqrt(v / _bias(beta2, step)) + eps)
@@ -86,4 +99,4 @@ def adam(param, grad, m, v, lr, step, beta1=BETA1, beta2=BETA2, eps=ADAM_EPS):
 
 
 __all__ = ["BETA1", "BETA2", "ADAM_EPS", "REINVERT_EPS", "sigmoid", "min_corner", "train_activate", "train_grads", "opacity_reg",
-           "opacity_reg_gradient", "adam"]
+           "opacity_reg_gradient", "depth_scale", "adam"]

@@ -211,6 +211,12 @@ class TrainConfig:
         3.0, "drop initial Delaunay faces whose longest edge exceeds this many local point spacings (distance to "
              "the 8th nearest point): the faces that span free space and train into shards (0: keep all)",
         flag="--init-max-edge", check=real(0.0), type=float)
+    position_lr_depth: bool = option(
+        True, "scale each vertex's position learning rate by min(1, its distance to the nearest training camera in "
+              "camera radii), read before every step: Adam moves a vertex by about the rate whatever its depth, so "
+              "geometry near the cameras jumped many pixels a step and turned into shards "
+              "(tsplus_wgpu/train/optimizer.py; docs/measurements.md)", flag="--position-lr-depth", check=boolean(),
+        absent=False, choices=["on", "off"])
     clear_path: bool = option(
         True, "drop the initial Delaunay faces within half the median camera spacing of the path the training cameras "
               "moved along: the photographer walked through that space, so it is empty (tsplus_wgpu/train/floaters.py; "
@@ -312,7 +318,7 @@ class TrainConfig:
     RESUME_KEYS = ("iterations", "quick", "indoor", "seed", "sh_degree", "background", "near", "opacity_reg",
                    "topology", "max_vertices", "vertex_budget", "densify_stop_rel", "densify_stop_windows",
                    "quick_topology_epochs", "quick_early_prune", "quick_opacity_lr_scale", "shell", "init_max_edge", "carve", "hard_prune",
-                   "weight_prune", "sigma_decay", "sigma_final", "opacity", "normals")
+                   "weight_prune", "sigma_decay", "sigma_final", "opacity", "normals", "position_lr_depth")
 
 
 def _label(f, source):

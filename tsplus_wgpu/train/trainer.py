@@ -6,7 +6,8 @@ scheduled sigma -> :class:`~.losses.ImageLoss` (0.8 L1 + 0.2 D-SSIM) -> ``pack_v
 backward (gradients into reused device buffers, no readback) -> early opacity loss
 (``opacity_reg`` + segmented sum, while it < 5000 scaled) -> ``train_grads`` (chain rule of the
 opacity activation, SH bands above the scheduled degree masked) -> Adam per parameter group
-(positions, SH DC, SH rest, opacity logits) with the scheduled learning rates.
+(positions, SH DC, SH rest, opacity logits) with the scheduled learning rates, the positions'
+scaled per vertex by depth (:mod:`.optimizer`).
 
 Host round trips: the renderer's size readbacks (pair counts, tile ranges); the trainer reads
 back only at its logging interval and for checkpoints.
@@ -50,7 +51,7 @@ import numpy as np
 from ..data.frame import WorldFrame
 from ..io.metrics import psnr, ssim  # noqa: F401  (re-exported: train.trainer.psnr/ssim)
 from ..kernels.loss import DownsampleArea, DownsampleAreaT, PackVOut, supersampled_camera
-from ..kernels.optim import Adam, OpacityRegGradient, TrainActivate, TrainGrads
+from ..kernels.optim import OpacityRegGradient, TrainActivate, TrainGrads
 from ..render.device_model import DeviceModel
 from ..types import TriangleModel
 from .checkpoint import CheckpointError, read_checkpoint, resume_config, write_checkpoint
@@ -62,6 +63,7 @@ from .losses import ImageLoss
 from .memory import check_fits
 from .loop import TrainLoop
 from .normals import NormalLoss, loss_from_render, normal_priors
+from .optimizer import ParamOptimizer
 from .schedules import SUPERSAMPLE_EVAL, logit_from_opacity
 from .state import PARAMS, VertexState
 from .strategy import TopologyStrategy, vertex_cap
@@ -109,7 +111,7 @@ class Trainer:
         self.pack = PackVOut(c)
         self.down = DownsampleArea(c)
         self.down_t = DownsampleAreaT(c)
-        self.adam = Adam(c)
+        self.optimizer = ParamOptimizer(c, [scene.cameras[i].center for i in self.train_views], config.position_lr_depth)
         self.reg = OpacityRegGradient(c, self.renderer.scratch)
         self._targets = {}
         #: per view (prior, valid) or None: the normal loss's priors (None: no normal loss)
@@ -292,15 +294,8 @@ class Trainer:
         active_k = min(self.k, (s.sh_degree(it) + 1) ** 2)
         self.grads(enc, self.params["logits"], self.gbuf["v_sh"], self.gbuf["v_opacity"], self.reg_out,
                    self.pgrad["logits"], self.n, self.k, active_k, floor, reg_w > 0, profiler=op)
-        lr = s.learning_rates(it)
-        n, k = self.n, self.k
-        # the SH [N, K, 3]: the first 3 floats of every vertex's 3K are its DC (lr sh_dc), the rest sh_rest
-        groups = (("positions", dict(lr=lr["positions"]), 3 * n), ("logits", dict(lr=lr["opacity"]), n),
-                  ("sh", dict(lr=lr["sh_dc"], lr_tail=lr["sh_rest"], period=3 * k, head=3), 3 * n * k))
-        for key, rates, size in groups:
-            m1, m2 = self.moments[key]
-            self.adam.record(enc, self.params[key], self.pgrad[key], m1, m2, size, step=it, profiler=op, **rates)
-        self.activate(enc, self.params["logits"], self.model.buffers["opacity"], n, floor, profiler=op)
+        self.optimizer.record(enc, self, it, op)
+        self.activate(enc, self.params["logits"], self.model.buffers["opacity"], self.n, floor, profiler=op)
         if sp is not None:        # the topology's per-step work in a submit of its own
             c.queue.submit([enc.finish()])
             sp.mark("optimizer")
