@@ -160,7 +160,9 @@ def test_the_end_of_training_removes_what_the_test_names(renderer, monkeypatch):
         return np.ones(len(tri), bool)
 
     monkeypatch.setattr(final, "far_occluders", every_triangle)
-    cfg = dict(iterations=2, quick=True, topology=False, log_every=0, mesh_colors="dc", color_detail=False)
+    # the shard check off: it would put back the (right) triangles named here (tests/train/test_shard_check.py)
+    cfg = dict(iterations=2, quick=True, topology=False, log_every=0, mesh_colors="dc", color_detail=False,
+               shard_check=False)
     out = {}
     for on in (False, True):
         t = Trainer(tiny, TrainConfig(**cfg, remove_far=on), renderer=renderer)

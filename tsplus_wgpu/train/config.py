@@ -249,6 +249,11 @@ class TrainConfig:
               "(tsplus_wgpu/train/final.py, floaters.py; +0.2 to +0.9 dB held-out on the four shared real captures, "
               "the path another +0.5 to +1.3 dB on lund)",
         flag="--remove-shards", check=boolean(), choices=["on", "off"])
+    shard_check: bool = option(
+        True, "with --remove-shards on: put back the removed triangles whose pixels the training views draw worse "
+              "without them (the mesh exported again without every removed one, its fill and colours made again; "
+              "tsplus_wgpu/train/final.py): a near surface the photos show in detail is imperfect, but better than "
+              "what lies behind it", flag="--shard-check", check=boolean(), choices=["on", "off"])
     remove_far: bool = option(
         True, "with --remove-shards on: also remove the surface triangles in front of what the training photos show "
               "far away (the sky): a pixel whose neighbouring views match it better along its direction alone than "

@@ -10,7 +10,8 @@ trained shell, is what that shell lost behind the surfaces (``config.fill_hidden
 draw the training views badly, and the floaters on the training cameras' path
 (:func:`~.floaters.path_floaters`) are removed and the fill and the colours made again
 (``config.remove_shards``, :func:`find_shards`), with the surface triangles in front of what the
-photos show far away (``config.remove_far``, :mod:`.far_field`); the mesh is subdivided where the held-back
+photos show far away (``config.remove_far``, :mod:`.far_field`), less those the training views
+draw worse without (``config.shard_check``, :func:`worse_without`); the mesh is subdivided where the held-back
 training views say finer colours draw them better (``config.color_detail``, :mod:`.detail`). The vertex colours are
 either the SH DC term (``config.mesh_colors = 'dc'``) or fitted to the training photos through
 the exported, depth-tested mesh (``'fit'``, :func:`~tsplus_wgpu.render.mesh_fit.fit_vertex_colors`):
@@ -92,6 +93,7 @@ def _planned(t):
     total = (v if cfg.final_prune else 0) + export + detail + v     # the cleanup, an export, the detail, the winding
     if cfg.remove_shards:
         total += v + export + (v if cfg.remove_far else 0)          # the shards' pass (and the far field's), the export again
+        total += v if cfg.shard_check else 0                       # the check of what was removed
     return total, export, detail
 
 
@@ -105,24 +107,12 @@ def final_mesh(trainer, progress=None):
         total, export, detail = _planned(t)
         bar.plan(total)
         keep = cleanup_mask(t)
-        t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0, far=0)
+        t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0, far=0, shards_kept=0)
         mesh = _exported(t, keep)
         if cfg.remove_shards and len(mesh[2]):
-            floaters = keep & path_floaters(t.positions_frame(), t.triangles_host, t.groups,
-                                            [t.scene.cameras[v] for v in t.train_views])
-            shards = find_shards(t, *mesh) | floaters
-            t.final_info["floaters"] = int(floaters.sum())
-            if cfg.remove_far:
-                far = ~shards & find_far_occluders(t, mesh[0], mesh[2], mesh[4])
-                t.final_info["far"] = int(far.sum())
-                shards |= far
-            if shards.any():
-                t.final_info["shards"] = int(shards.sum())
-                mesh = _exported(t, keep & ~shards)
-            else:
-                bar.replan(-export)
+            mesh = _without_shards(t, keep, mesh, export)
         elif cfg.remove_shards:
-            bar.replan(-(len(t.train_views) * (2 if cfg.remove_far else 1) + export))
+            bar.replan(-(len(t.train_views) * (1 + int(cfg.remove_far) + int(cfg.shard_check)) + export))
         pos_frame, pos_world, tris, colors, _ = mesh
         if cfg.color_detail and cfg.mesh_colors == "fit":
             start = bar.done
@@ -134,6 +124,60 @@ def final_mesh(trainer, progress=None):
         return pos_world, tris, colors
     finally:
         t.finish_progress = None
+
+
+def _without_shards(t, keep, mesh, export):
+    """The exported mesh less the shards, the path's floaters and (``config.remove_far``) what
+    stands in front of the far field; with ``config.shard_check``, those of the removed whose
+    pixels the training views draw worse without them are put back (:func:`worse_without`)."""
+    cfg, bar = t.config, _progress(t)
+    floaters = keep & path_floaters(t.positions_frame(), t.triangles_host, t.groups,
+                                    [t.scene.cameras[v] for v in t.train_views])
+    drawn = [] if cfg.shard_check else None
+    shards = find_shards(t, *mesh, record=drawn) | floaters
+    far = ~shards & find_far_occluders(t, mesh[0], mesh[2], mesh[4]) if cfg.remove_far else np.zeros(t.m, bool)
+    shards |= far
+    out, back = mesh, np.zeros(t.m, bool)
+    if shards.any():
+        out = _exported(t, keep & ~shards)
+        if cfg.shard_check:
+            back = worse_without(t, mesh, out, drawn, shards)
+            bar.replan(export if back.any() else 0)
+            if back.any():
+                shards &= ~back
+                out = _exported(t, keep & ~shards)
+    else:
+        bar.replan(-export - (len(t.train_views) if cfg.shard_check else 0))
+    t.final_info.update(shards=int(shards.sum()), floaters=int((floaters & shards).sum()),
+                        far=int((far & shards).sum()), shards_kept=int(back.sum()))
+    return out
+
+
+def worse_without(t, mesh, out, drawn, removed):
+    """``[M]`` bool over the trainer's triangles: those of ``removed`` whose pixels in the
+    training views (``drawn``: per view, the exported triangle of each pixel of ``mesh`` and its
+    squared error, from :func:`find_shards`) have a larger summed error in ``out`` (the mesh
+    exported without every one of ``removed``, its fill and colours made again) than with it.
+    A shard across free space draws every view badly, and what lies behind it draws them better;
+    a near surface the photos show in detail draws them imperfectly too, but better than whatever
+    is behind it."""
+    pos_frame, _, tris, _, source = mesh
+    cand = (source >= 0) & removed[np.maximum(source, 0)]
+    with_, without = np.zeros(len(tris)), np.zeros(len(tris))
+    gpu_mesh = t.mesh_renderer.upload((out[0], out[2], out[3]))
+    _progress(t).stage("shard check")
+    for v, (ids, r) in zip(t.train_views, drawn):
+        img = t.mesh_renderer.render(gpu_mesh, t.scene.cameras[v], near=t.config.near).image
+        _progress(t).tick()
+        r2 = np.mean((np.asarray(img, np.float64) - t.scene.images[v]) ** 2, axis=-1).astype(np.float32)  # as r
+        sel = ids >= 0
+        sel[sel] = cand[ids[sel]]
+        with_ += np.bincount(ids[sel], weights=r[sel], minlength=len(tris))
+        without += np.bincount(ids[sel], weights=r2[sel], minlength=len(tris))
+    worse = cand & (without > with_)
+    back = np.zeros(t.m, bool)
+    back[source[worse]] = True
+    return back
 
 
 def _nearest(points, centers):
@@ -237,14 +281,15 @@ def _exported(t, keep):
     return pos_frame, pos_world, tris, colors, source
 
 
-def find_shards(trainer, pos_frame, pos_world, tris, colors, source):
+def find_shards(trainer, pos_frame, pos_world, tris, colors, source, record=None):
     """``[M]`` bool over the trainer's triangles: the shards of the exported mesh. A shard is a
     surface triangle that looks large from the training cameras (longest edge over the distance
     to the nearest training camera above :data:`SHARD_ANGLE` rad) and draws the training views
     badly (its pixels' mean squared error, with the exported colours, above
     :data:`SHARD_RESIDUAL` times the mean over every drawn pixel): a flat triangle across free
     space shows different scene content in every view, so no colour fits it. Removing them lets
-    the backdrop fill and the colour fit take their pixels."""
+    the backdrop fill and the colour fit take their pixels. ``record``: a list that gets, per
+    training view, ``(ids, squared error)`` per pixel (:func:`worse_without`)."""
     from ..render.mesh_fit import id_mesh, triangle_ids
     t = trainer
     near = t.config.near
@@ -258,6 +303,8 @@ def find_shards(trainer, pos_frame, pos_world, tris, colors, source):
         _progress(t).tick()
         r = np.mean((np.asarray(img, np.float64) - t.scene.images[v]) ** 2, axis=-1)
         ok = ids >= 0
+        if record is not None:
+            record.append((ids.astype(np.int32), r.astype(np.float32)))
         err += np.bincount(ids[ok], weights=r[ok], minlength=len(tris))
         count += np.bincount(ids[ok], minlength=len(tris))
         total, drawn = total + float(r[ok].sum()), drawn + int(ok.sum())
