@@ -128,20 +128,23 @@ def final_mesh(trainer, progress=None):
 
 def _without_shards(t, keep, mesh, export):
     """The exported mesh less the shards, the path's floaters and (``config.remove_far``) what
-    stands in front of the far field; with ``config.shard_check``, those of the removed whose
-    pixels the training views draw worse without them are put back (:func:`worse_without`)."""
+    stands in front of the far field; with ``config.shard_check``, the shards (by size and error
+    alone: the floaters and the far field's have evidence of their own, the cameras' path and the
+    neighbouring photos) whose pixels the training views draw worse without them are put back
+    (:func:`worse_without`)."""
     cfg, bar = t.config, _progress(t)
     floaters = keep & path_floaters(t.positions_frame(), t.triangles_host, t.groups,
                                     [t.scene.cameras[v] for v in t.train_views])
     drawn = [] if cfg.shard_check else None
-    shards = find_shards(t, *mesh, record=drawn) | floaters
+    sized = find_shards(t, *mesh, record=drawn)
+    shards = sized | floaters
     far = ~shards & find_far_occluders(t, mesh[0], mesh[2], mesh[4]) if cfg.remove_far else np.zeros(t.m, bool)
     shards |= far
     out, back = mesh, np.zeros(t.m, bool)
     if shards.any():
         out = _exported(t, keep & ~shards)
         if cfg.shard_check:
-            back = worse_without(t, mesh, out, drawn, shards)
+            back = worse_without(t, mesh, out, drawn, sized & ~floaters & ~far)
             bar.replan(export if back.any() else 0)
             if back.any():
                 shards &= ~back
