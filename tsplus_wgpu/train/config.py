@@ -250,10 +250,11 @@ class TrainConfig:
               "the path another +0.5 to +1.3 dB on lund)",
         flag="--remove-shards", check=boolean(), choices=["on", "off"])
     shard_check: bool = option(
-        True, "with --remove-shards on: put back the removed triangles whose pixels the training views draw worse "
-              "without them (the mesh exported again without every removed one, its fill and colours made again; "
-              "tsplus_wgpu/train/final.py): a near surface the photos show in detail is imperfect, but better than "
-              "what lies behind it", flag="--shard-check", check=boolean(), choices=["on", "off"])
+        True, "with --remove-shards on: put back the shards (by size and error; not the path's floaters or the far "
+              "field's) whose pixels the training views draw worse without them (the mesh exported again without "
+              "every removed one, its fill and colours made again; tsplus_wgpu/train/final.py): a near surface the "
+              "photos show in detail is imperfect, but better than what lies behind it", flag="--shard-check",
+        check=boolean(), choices=["on", "off"])
     remove_far: bool = option(
         True, "with --remove-shards on: also remove the surface triangles in front of what the training photos show "
               "far away (the sky): a pixel whose neighbouring views match it better along its direction alone than "
