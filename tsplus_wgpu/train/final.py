@@ -107,7 +107,8 @@ def final_mesh(trainer, progress=None):
         total, export, detail = _planned(t)
         bar.plan(total)
         keep = cleanup_mask(t)
-        t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0, far=0, shards_kept=0)
+        t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0, far=0, shards_kept=0,
+                            shards_checked=0)
         mesh = _exported(t, keep)
         if cfg.remove_shards and len(mesh[2]):
             mesh = _without_shards(t, keep, mesh, export)
@@ -140,19 +141,21 @@ def _without_shards(t, keep, mesh, export):
     shards = sized | floaters
     far = ~shards & find_far_occluders(t, mesh[0], mesh[2], mesh[4]) if cfg.remove_far else np.zeros(t.m, bool)
     shards |= far
-    out, back = mesh, np.zeros(t.m, bool)
+    out, back, checked = mesh, np.zeros(t.m, bool), sized & ~floaters & ~far
     if shards.any():
         out = _exported(t, keep & ~shards)
-        if cfg.shard_check:
-            back = worse_without(t, mesh, out, drawn, sized & ~floaters & ~far)
-            bar.replan(export if back.any() else 0)
-            if back.any():
-                shards &= ~back
-                out = _exported(t, keep & ~shards)
     else:
-        bar.replan(-export - (len(t.train_views) if cfg.shard_check else 0))
+        bar.replan(-export)
+    if cfg.shard_check and checked.any():
+        back = worse_without(t, mesh, out, drawn, checked)
+        bar.replan(export if back.any() else 0)
+        if back.any():
+            shards &= ~back
+            out = _exported(t, keep & ~shards)
+    elif cfg.shard_check:
+        bar.replan(-len(t.train_views))                            # nothing to check
     t.final_info.update(shards=int(shards.sum()), floaters=int((floaters & shards).sum()),
-                        far=int((far & shards).sum()), shards_kept=int(back.sum()))
+                        far=int((far & shards).sum()), shards_kept=int(back.sum()), shards_checked=int(checked.sum()))
     return out
 
 
