@@ -175,7 +175,7 @@ def worse_without(t, mesh, out, drawn, removed):
     for v, (ids, r) in zip(t.train_views, drawn):
         img = t.mesh_renderer.render(gpu_mesh, t.scene.cameras[v], near=t.config.near).image
         _progress(t).tick()
-        r2 = np.mean((np.asarray(img, np.float64) - t.scene.images[v]) ** 2, axis=-1).astype(np.float32)  # as r
+        r2 = _view_error(t, img, v).astype(np.float32)      # as find_shards records r
         sel = ids >= 0
         sel[sel] = cand[ids[sel]]
         with_ += np.bincount(ids[sel], weights=r[sel], minlength=len(tris))
@@ -184,6 +184,12 @@ def worse_without(t, mesh, out, drawn, removed):
     back = np.zeros(t.m, bool)
     back[source[worse]] = True
     return back
+
+
+def _view_error(t, img, v):
+    """``[H, W]`` float64: the squared error of ``img`` against training view ``v``'s photo,
+    the mean over the colour channels."""
+    return np.mean((np.asarray(img, np.float64) - t.scene.images[v]) ** 2, axis=-1)
 
 
 def _nearest(points, centers):
@@ -307,7 +313,7 @@ def find_shards(trainer, pos_frame, pos_world, tris, colors, source, record=None
         ids = triangle_ids(t.mesh_renderer, pos_frame, tris, cam, near, ids_mesh)
         img = t.mesh_renderer.render(mesh, cam, near=near).image
         _progress(t).tick()
-        r = np.mean((np.asarray(img, np.float64) - t.scene.images[v]) ** 2, axis=-1)
+        r = _view_error(t, img, v)
         ok = ids >= 0
         if record is not None:
             record.append((ids.astype(np.int32), r.astype(np.float32)))
