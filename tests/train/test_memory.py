@@ -89,8 +89,8 @@ def _slope(family, name, x, **fixed):
 
 
 def test_the_coefficients_docs_memory_quotes():
-    assert _slope("vertex", "num_vertices", 2**20) == 136 + 48 * 16          # SH degree 3: K = 16
-    assert _slope("vertex", "num_vertices", 2**20, sh_degree=0) == 136 + 48
+    assert _slope("vertex", "num_vertices", 2**20) == 140 + 48 * 16          # SH degree 3: K = 16
+    assert _slope("vertex", "num_vertices", 2**20, sh_degree=0) == 140 + 48
     assert _slope("triangle", "num_triangles", 3 * 2**20) == pytest.approx(402.7, abs=0.05)
     assert _slope("pair", "pairs", 2**22) == pytest.approx(125.4, abs=0.05)
     assert _slope("pair", "pairs", 2**22, rows=0) == pytest.approx(117.4, abs=0.05)

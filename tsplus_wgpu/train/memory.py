@@ -8,7 +8,8 @@ backward pass, when the forward's buffers are still held) with the size the code
   as they are) and opacity logits, each with Adam's two moments; the renderer's opacity; the
   renderer's gradients (``v_positions`` and ``v_sh`` are the parameters' too) and the logits'
   gradient; the opacity loss's per-vertex sums; the forward's colours and the backward's vertex
-  sums.
+  sums; the position step's scale by depth (``position_lr_depth``, on by default; 4 bytes a
+  vertex more than a run without it).
 * **per triangle**: the index buffer, the opacity loss's corners and their order by vertex, the
   topology's running max weight; the forward's projected record ``Tri2D`` (size read from the
   WGSL), pixel boxes, depth keys and order, row offsets, max weights and the depth sort's
@@ -137,6 +138,7 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
         ("v_positions", 12 * n), ("v_sh", 12 * n * k), ("v_opacity", 4 * n),
         ("v_logits", 4 * n), ("opacity_reg_vertex", 16 * n),
         ("colors", 16 * n), ("vertex_sums", 32 * n))]           # forward, backward
+    out.append((V, "position_lr_scale", _scratch(4 * n)))          # the position step by depth (default on)
     out += [(T, name, _buf(b)) for name, b in (
         ("triangles", 12 * m), ("opacity_reg_corners", 48 * m), ("opacity_reg_keys", 12 * m),
         ("opacity_reg_index", 12 * m), ("max_weight_acc", 4 * m),
