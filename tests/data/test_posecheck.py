@@ -1,6 +1,7 @@
 """A photo whose given pose disagrees with its own matches (data/posecheck.py) is found by the
-triangulation of posed photos and left out of training and of the triangulation; photos whose
-poses are right are never left out."""
+triangulation of posed photos and posed again from its matches (data/poserepair.py), or left out
+of training and of the triangulation when they cannot pose it; photos whose poses are right are
+never left out."""
 
 from types import SimpleNamespace
 
@@ -145,11 +146,14 @@ def _one_tilted(tmp_path, small, index):
 
 
 @pytest.mark.slow
-def test_a_photo_with_a_wrong_pose_is_left_out_of_training(tmp_path):
+def test_a_photo_with_a_wrong_pose_is_posed_again_from_its_matches(tmp_path):
     """The small procedural scene written as LLFF, one training camera tilted by 8 degrees in the
-    file: the loader names it, trains without it, and no initial point's track uses it; with the
-    right poses nothing is left out (about 3 s)."""
+    file: the loader names it and poses it again from its matches to the points the other photos
+    triangulate, within a small fraction of a degree and of the scene's spacing of the true pose,
+    and trains with that pose; the points are triangulated with it in. With the right poses nothing
+    is left out or posed again (about 6 s)."""
     from tests.data.test_formats import write_llff
+    from tsplus_wgpu.data.poserepair import moved
     small = load_procedural("small", seed=0)
     write_llff(tmp_path / "good", small)
     good = load_scene(tmp_path / "good", points="triangulate", cache_dir=tmp_path / "cache")
@@ -159,9 +163,42 @@ def test_a_photo_with_a_wrong_pose_is_left_out_of_training(tmp_path):
     bad = _one_tilted(tmp_path, small, wrong)
     said = [w for w in bad.warnings if "pose disagrees" in w]
     assert len(said) == 1 and said[0].startswith(bad.image_names[wrong] + ":"), bad.warnings
+    assert "posed again from" in said[0] and "trained with that pose" in said[0]
+    assert bad.train_indices == good.train_indices and bad.test_indices == good.test_indices
+    spacing = np.median([moved(good.cameras[i].world_to_camera, good.cameras[i + 1].world_to_camera)[0]
+                         for i in range(len(good.cameras) - 1)])
+    dist, turn = moved(good.cameras[wrong].world_to_camera, bad.cameras[wrong].world_to_camera)
+    assert turn < 0.3 and dist < 0.05 * spacing, (turn, dist, spacing)
+    assert moved(good.cameras[wrong].world_to_camera, _turned(good.cameras[wrong], 8.0).world_to_camera)[1] > 7.9
+    others = [i for i in range(len(good.cameras)) if i != wrong]
+    assert all(np.array_equal(good.cameras[i].world_to_camera, bad.cameras[i].world_to_camera) for i in others)
+    assert wrong in set(np.unique(bad.point_tracks[1]))           # its matches make points again
+    T.check(bad.point_tracks, len(bad.points), len(bad.cameras))
+    again = load_scene(tmp_path / "bad", points="triangulate", cache_dir=tmp_path / "cache")   # cached
+    assert again.train_indices == bad.train_indices and said[0] in again.warnings
+    np.testing.assert_array_equal(again.cameras[wrong].world_to_camera, bad.cameras[wrong].world_to_camera)
+
+
+@pytest.mark.slow
+def test_a_photo_with_a_wrong_pose_that_cannot_be_posed_again_is_left_out(tmp_path, monkeypatch):
+    """The same tilted camera when its matches are too few to pose it (the threshold raised past
+    them): the loader names it, trains without it, and no initial point's track uses it. A
+    checkpoint trained with the photo refuses to resume without it (about 3 s)."""
+    from tests.data.test_formats import write_llff
+    from tsplus_wgpu.data import poserepair
+    small = load_procedural("small", seed=0)
+    write_llff(tmp_path / "good", small)
+    good = load_scene(tmp_path / "good", points="triangulate", cache_dir=tmp_path / "cache")
+    wrong = good.train_indices[12]
+    monkeypatch.setattr(poserepair, "MIN_MATCHES", 10 ** 9)
+    bad = _one_tilted(tmp_path, small, wrong)
+    said = [w for w in bad.warnings if "pose disagrees" in w]
+    assert len(said) == 1 and said[0].startswith(bad.image_names[wrong] + ":"), bad.warnings
+    assert "left out of training" in said[0]
     assert bad.train_indices == [i for i in good.train_indices if i != wrong]
     assert bad.test_indices == good.test_indices
     assert wrong not in set(np.unique(bad.point_tracks[1]))
+    assert poserepair.moved(good.cameras[wrong].world_to_camera, bad.cameras[wrong].world_to_camera)[1] > 7.9
     T.check(bad.point_tracks, len(bad.points), len(bad.cameras))
     again = load_scene(tmp_path / "bad", points="triangulate", cache_dir=tmp_path / "cache")   # cached
     assert again.train_indices == bad.train_indices and said[0] in again.warnings
@@ -173,6 +210,40 @@ def test_a_photo_with_a_wrong_pose_is_left_out_of_training(tmp_path):
     bad.points = good.points                      # the same count of points: the training views alone
     with pytest.raises(UserError, match="training views differ"):
         check_fingerprint("ckpt.npz", saved, data_fingerprint(bad, "S"))
+
+
+def test_repose_recovers_a_pose_from_matches_with_outliers_and_refuses_too_few():
+    """pycolmap's PnP on exact projections of the tiny scene's points, a third of them replaced by
+    random pixels: the pose to 1e-6; with fewer matches than MIN_MATCHES, or most of them wrong,
+    no pose. ``moved`` measures a known turn and shift."""
+    import pycolmap
+
+    from tsplus_wgpu.data import poserepair as R
+    sc = load_procedural("small", seed=0)
+    cam = sc.cameras[3]
+    uv, z = cam.project(sc.points)
+    inside = (z > 0) & (uv[:, 0] > 0) & (uv[:, 0] < cam.width) & (uv[:, 1] > 0) & (uv[:, 1] < cam.height)
+    uv, xyz = uv[inside].astype(np.float64), sc.points[inside].astype(np.float64)
+    rng = np.random.default_rng(0)
+    bad = rng.random(len(uv)) < 1 / 3
+    noisy = uv.copy()
+    noisy[bad] = rng.random((int(bad.sum()), 2)) * [cam.width, cam.height]
+    pc = pycolmap.Camera.create_from_model_name(1, "PINHOLE", cam.fx, cam.width, cam.height)
+    pc.params = [cam.fx, cam.fy, cam.cx, cam.cy]
+    got = R.repose(pycolmap, noisy, xyz, pc)
+    assert len(uv) > 100 and got is not None
+    assert got["matches"] == len(uv) and abs(got["inliers"] - int((~bad).sum())) <= 0.02 * len(uv)
+    np.testing.assert_allclose(got["cam_from_world"], cam.world_to_camera[:3], atol=1e-6)
+    assert R.repose(pycolmap, uv[:R.MIN_MATCHES - 1], xyz[:R.MIN_MATCHES - 1], pc) is None
+    mostly = uv.copy()
+    wrong = rng.random(len(uv)) < 0.7
+    mostly[wrong] = rng.random((int(wrong.sum()), 2)) * [cam.width, cam.height]
+    assert R.repose(pycolmap, mostly, xyz, pc) is None
+    d, a = R.moved(cam.world_to_camera, _turned(cam, 8.0).world_to_camera)
+    assert d < 1e-9 and a == pytest.approx(8.0)
+    shifted = cam.world_to_camera.copy()
+    shifted[:3, 3] += [0.3, 0.0, 0.4]
+    assert R.moved(cam.world_to_camera, shifted) == pytest.approx((0.5, 0.0), abs=1e-6)
 
 
 @pytest.mark.slow

@@ -4,7 +4,9 @@ frusta (:mod:`.frusta`), for :func:`~.loader.load_scene`.
 
 The triangulation also checks every training photo's pose against its own matches
 (:mod:`.posecheck`); the photos whose pose disagrees are named in a warning and added to
-``left_out``, which the loader takes out of the training views. The held-out photos are checked
+``left_out``, which the loader takes out of the training views, unless their matches pose them again
+(:mod:`.poserepair`): then their camera in ``reposed`` (the loader's cameras) takes the new pose.
+The held-out photos are checked
 against their training neighbours (:mod:`.heldout_poses`) and go to ``held_off``, out of the
 held-out views.
 """
@@ -43,7 +45,7 @@ def triangulation_key(specs, background) -> str:
 
 
 def initial_points(points, cameras, imgs, specs, background, train_idx, bounds, cache_dir, progress, seed,
-                   warnings, left_out, test_idx=(), held_off=None):
+                   warnings, left_out, test_idx=(), held_off=None, reposed=None):
     """Initial points without SfM ones (or when asked): triangulated with pycolmap from the
     posed training images at their full size (:func:`triangulated`), else made from the camera
     frusta. ``specs`` are the loaded frames at full size.
@@ -52,7 +54,7 @@ def initial_points(points, cameras, imgs, specs, background, train_idx, bounds, 
     from .frusta import frusta_points  # noqa: PLC0415
     if points != "frusta":
         got = triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out, test_idx=test_idx,
-                           held_off=held_off)
+                           held_off=held_off, reposed=reposed)
         if got is not None:
             return got[0], got[1], "triangulated", got[2]
     pts, cols = frusta_points(cameras, imgs, bounds=bounds, seed=seed)
@@ -62,13 +64,17 @@ def initial_points(points, cameras, imgs, specs, background, train_idx, bounds, 
 
 
 def triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out,
-                 fallback="initial points made from the camera frusta instead", test_idx=(), held_off=None):
+                 fallback="initial points made from the camera frusta instead", test_idx=(), held_off=None,
+                 reposed=None):
     """``(points, colours, track table or None)`` triangulated with pycolmap from the posed
     training images (all images when fewer than 2 are for training) at their full size, cached
     (so every downscale reuses them); None, with the warning ``"<why>: <fallback>"``, when that
     fails or there are not 2 images. ``specs`` are the loaded frames at full size; the track
     table's view ids index them. The held-out photos ``test_idx`` are checked against their poses
-    too (:mod:`.heldout_poses`); those that disagree are named and added to ``held_off``."""
+    too (:mod:`.heldout_poses`); those that disagree are named and added to ``held_off``. A
+    training photo whose pose disagrees and that its matches pose again (:mod:`.poserepair`) is
+    named and its camera in ``reposed`` (the scene's cameras, a list by frame index) given the new
+    pose."""
     from .scene import full_size_frame  # noqa: PLC0415
     from .sfm import cache_root, triangulate_frames  # noqa: PLC0415
     use = train_idx if len(train_idx) >= 2 else list(range(len(specs)))
@@ -94,10 +100,36 @@ def triangulated(specs, background, train_idx, cache_dir, progress, warnings, le
                         f"{err[k] * 100:.2f} % of the image diagonal, the median photo's {np.nanmedian(err) * 100:.2f} "
                         "%): left out of training and of the triangulation; correct or remove it in the camera model")
         left_out.append(use[k])
+    _name_reposed(sub, use, info, warnings, reposed, left_out)
     if held_off is not None and len(test_idx) and len(use) < len(specs):
         _check_held_out(specs, use, list(test_idx), background, info, progress, warnings, held_off)
     tracks = info.get("tracks")
     return pts, cols, None if tracks is None else remap(tracks, np.asarray(use, np.int64))
+
+
+def _name_reposed(sub, use, info, warnings, reposed, left_out):
+    """A warning for each photo of ``info`` posed again from its matches (:mod:`.poserepair`),
+    and its new pose given to its camera ``reposed[use[k]]`` (when ``reposed`` is None the photo
+    is left out, like one that could not be posed again)."""
+    from .poserepair import moved, with_pose  # noqa: PLC0415
+    err = info.get("pose_error")
+    typical = np.nanmedian(err) if err is not None and np.any(np.isfinite(err)) else float("nan")
+    for j, k in enumerate(map(int, info.get("reposed", ()))):
+        w2c = np.asarray(info["reposed_w2c"][j], np.float64)
+        dist, turn = moved(sub[k].camera.world_to_camera, w2c)
+        inl, m = (int(v) for v in info["reposed_matches"][j])
+        if reposed is None:
+            warnings.append(f"{sub[k].name}: its pose disagrees with its matches to the other photos: left out of "
+                            "training; correct or remove it in the camera model")
+            left_out.append(use[k])
+            continue
+        warnings.append(f"{sub[k].name}: its pose disagrees with its matches to the other photos (epipolar error "
+                        f"{err[k] * 100:.2f} % of the image diagonal, the median photo's {typical * 100:.2f} %): posed "
+                        f"again from {inl} of its {m} matches to the triangulated points ({dist:.3g} units and "
+                        f"{turn:.0f} degrees from the camera model's pose; epipolar error now "
+                        f"{float(info['reposed_error'][j]) * 100:.2f} %) and trained with that pose; correct it in the "
+                        "camera model")
+        reposed[use[k]] = with_pose(reposed[use[k]], w2c)
 
 
 def _check_held_out(specs, use, test_idx, background, info, progress, warnings, held_off):
@@ -105,7 +137,7 @@ def _check_held_out(specs, use, test_idx, background, info, progress, warnings, 
     typical error in ``info`` (the triangulation's); a failure to check is a warning, never an error."""
     from .heldout_poses import disagreeing_held_out, held_out_errors  # noqa: PLC0415
     err = np.asarray(info.get("pose_error", ()), np.float64)
-    off = set(int(k) for k in info.get("pose_off", ()))
+    off = set(int(k) for k in info.get("pose_off", ())) | set(int(k) for k in info.get("reposed", ()))
     judged = [e for k, e in enumerate(err) if np.isfinite(e) and k not in off]
     if len(judged) < 3:
         return
@@ -127,12 +159,12 @@ def _check_held_out(specs, use, test_idx, background, info, progress, warnings, 
 
 
 def most_points(sfm, specs, background, train_idx, cache_dir, progress, warnings, left_out, test_idx=(),
-                held_off=None):
+                held_off=None, reposed=None):
     """``points="most"``: ``(points, colours, tracks, source)`` of the SfM points ``sfm``
     (``(points, colours, tracks)``) or of :func:`triangulated`'s, whichever are more; a
     warning says which."""
     got = triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out, "the SfM points kept",
-                       test_idx=test_idx, held_off=held_off)
+                       test_idx=test_idx, held_off=held_off, reposed=reposed)
     if got is None:
         return (*sfm, "sfm")
     n_sfm, n_tri = len(sfm[0]), len(got[0])

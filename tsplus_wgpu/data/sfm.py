@@ -4,7 +4,9 @@
   and its cache (:func:`cache_root`), keyed by the photos' bytes (:func:`_fingerprint`).
 * :func:`triangulate_known_poses`: features and matches as above, photos whose given pose
   disagrees with their matches left out (:mod:`.posecheck`), then pycolmap's point triangulator
-  with the given cameras held fixed.
+  with the given cameras held fixed; a photo left out is posed again from its matches to those
+  points where they agree on one pose (:mod:`.poserepair`), and the points triangulated again
+  with it in.
 
 pycolmap runs on one thread (:func:`sfm_threads`), so both give the same result on every run.
 The fallback without SfM points, points in the cameras' frusta, is :mod:`.frusta`.
@@ -28,6 +30,7 @@ from .guided import add_guided_matches
 from .images import write_image
 from .long_calls import Stopped, _Progress, import_pycolmap  # noqa: F401  (Stopped: re-exported)
 from .posecheck import left_out, pose_errors
+from .poserepair import reposed_photos, with_pose
 from .tracks import check as check_tracks
 from .tracks import of_pycolmap_points as tracks_of_points
 
@@ -41,8 +44,9 @@ TRIANGULATION_MIN_ANGLE = 1.0
 
 #: the recipe's version in every cache key: results of an older recipe are not reused
 #: (v3: pycolmap on one thread, deterministic; v4: matches guided by the known poses added;
-#: v5: guided over 12 nearest cameras instead of 6)
-RECIPE = "v5"
+#: v5: guided over 12 nearest cameras instead of 6; v7: photos whose pose disagrees posed again
+#: from their matches, :mod:`.poserepair`; v6 was an experiment's, not committed, so never reused)
+RECIPE = "v7"
 #: the photo folder's SfM recipe (unchanged by v4, which only adds matches for posed images;
 #: v5: the global mapper first, the EXIF focal length held, :mod:`.photos`; v4 was an
 #: experiment's, reverted, so its cache entries must not be read as this recipe's)
@@ -294,7 +298,11 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
     table (:mod:`.tracks`) whose ids index ``names``; ``info["pose_error"]`` each image's error
     against its pose (:func:`~.posecheck.pose_errors`, NaN where not judged) and
     ``info["pose_off"]`` the indices of those left out (:func:`~.posecheck.left_out`: no match,
-    point or track of theirs is used).
+    point or track of theirs is used); of the photos it judged off, ``info["reposed"]`` the indices
+    of those posed again from their matches (:mod:`.poserepair`), ``info["reposed_w2c"]`` their
+    new world-to-camera poses [K,3,4], ``info["reposed_error"]`` their epipolar error with it and
+    ``info["reposed_matches"]`` [K,2] the correspondences that agree with it and all of them (they
+    are in the triangulation with the new pose).
     """
     pycolmap = _pycolmap()
     sfm_threads()   # a bad TSPLUS_SFM_THREADS is an error before any work, never a fallback
@@ -305,15 +313,20 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
     if result.is_file():
         try:
             with np.load(result) as z:
-                if {"track_offsets", "track_frames", "pose_error"} <= set(z.files):   # else stale (older version)
+                if {"track_offsets", "track_frames", "pose_error", "reposed"} <= set(z.files):   # else stale
                     tracks = (z["track_offsets"].astype(np.int64), z["track_frames"].astype(np.int32))
                     check_tracks(tracks, len(z["xyz"]), len(names))
                     pose_error, pose_off = z["pose_error"].astype(np.float64), z["pose_off"].astype(np.int64)
-                    if len(pose_error) != len(names) or np.any((pose_off < 0) | (pose_off >= len(names))):
+                    reposed = {k: z[k] for k in ("reposed", "reposed_w2c", "reposed_error", "reposed_matches")}
+                    idx = reposed["reposed"].astype(np.int64)
+                    if (len(pose_error) != len(names) or np.any((pose_off < 0) | (pose_off >= len(names)))
+                            or np.any((idx < 0) | (idx >= len(names))) or reposed["reposed_w2c"].shape != (len(idx), 3, 4)
+                            or not np.all(np.isfinite(reposed["reposed_w2c"]))):
                         raise ValueError("pose check of other images")
                     mark_used(work)
                     return z["xyz"], z["rgb"], {"cached": str(result), "mean_reprojection_error": float(z["err"]),
-                                                "tracks": tracks, "pose_error": pose_error, "pose_off": pose_off}
+                                                "tracks": tracks, "pose_error": pose_error, "pose_off": pose_off,
+                                                **reposed}
         except Exception:  # a damaged cache entry: compute again
             pass
     if work.exists():
@@ -348,12 +361,17 @@ def _triangulated_points(pycolmap, work, load_one, names, progress, max_image_si
         del img
     if len(safe) < 2:
         raise RuntimeError(f"only {len(safe)} image(s) could be read for triangulation")
-    rec, errors, off = _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaustive_max)
+    rec, errors, off, fixed = _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaustive_max)
     frame = dict(zip(safe, frame_of))
     pose_error = np.full(len(names), np.nan)
     for s, (e, _) in errors.items():
         pose_error[frame[s]] = e
     pose_off = np.array([frame[s] for s in off], np.int64)
+    reposed = {"reposed": np.array([frame[s] for s in fixed], np.int64),
+               "reposed_w2c": np.array([fixed[s]["cam_from_world"] for s in fixed], np.float64).reshape(-1, 3, 4),
+               "reposed_error": np.array([fixed[s]["error"] for s in fixed], np.float64),
+               "reposed_matches": np.array([[fixed[s]["inliers"], fixed[s]["matches"]] for s in fixed],
+                                           np.int64).reshape(-1, 2)}
     pts = list(rec.points3D.values())
     if len(pts) < 50:
         raise RuntimeError(f"pycolmap triangulated only {len(pts)} points")
@@ -363,11 +381,11 @@ def _triangulated_points(pycolmap, work, load_one, names, progress, max_image_si
     tracks = tracks_of_points(rec, pts, frame)
     tmp = work / f"points.tmp{os.getpid()}.npz"
     np.savez(tmp, xyz=xyz, rgb=rgb, err=err, track_offsets=tracks[0], track_frames=tracks[1], pose_error=pose_error,
-             pose_off=pose_off)
+             pose_off=pose_off, **reposed)
     os.replace(tmp, result)
     trim(work, "tri")
     return xyz, rgb, {"mean_reprojection_error": err, "reconstruction": rec, "work": str(work), "tracks": tracks,
-                      "pose_error": pose_error, "pose_off": pose_off}
+                      "pose_error": pose_error, "pose_off": pose_off, **reposed}
 
 
 def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaustive_max):
@@ -381,30 +399,45 @@ def _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaus
         _extract_and_match(pycolmap, db, img_dir, safe, pycolmap.CameraMode.PER_IMAGE, "PINHOLE",
                            pairs=pairs, max_image_size=max_image_size, progress=prog,
                            small_images=max(cameras[0].width, cameras[0].height) < 1200)
-        rec = _posed_reconstruction(pycolmap, db, cameras, safe)
-        errors = pose_errors(pycolmap, db, rec)      # each photo's matches against its pose
+        posed = _posed_reconstruction(pycolmap, db, cameras, safe)
+        errors = pose_errors(pycolmap, db, posed)      # each photo's matches against its pose
         off = left_out(errors)
-        if off:     # a wrong pose: out of the reconstruction, so none of its matches makes a point
-            rec = _posed_reconstruction(pycolmap, db, cameras, safe, skip=set(off))
+        # a wrong pose: out of the reconstruction, so none of its matches makes a point
+        rec = _posed_reconstruction(pycolmap, db, cameras, safe, skip=set(off)) if off else posed
         prog.stage("matching along the known epipolar lines")
-        add_guided_matches(pycolmap, db, rec, [p for p in _neighbour_pairs(cameras, safe, k=GUIDED_NEIGHBOURS)
-                                               if not set(p) & set(off)],
+        guided = [p for p in _neighbour_pairs(cameras, safe, k=GUIDED_NEIGHBOURS) if not set(p) & set(off)]
+        add_guided_matches(pycolmap, db, rec, guided,
                            on_pair=lambda k, n: prog.note(f"matching along the known epipolar lines: pair {k}/{n}"))
         prog.stage("triangulating")
-        out = work / "sparse"
-        out.mkdir(exist_ok=True)
-        opts = pycolmap.IncrementalPipelineOptions()
-        opts.num_threads = sfm_threads()
-        opts.triangulation.min_angle = TRIANGULATION_MIN_ANGLE
-        opts.mapper.filter_min_tri_angle = TRIANGULATION_MIN_ANGLE
-        opts.triangulation.ignore_two_view_tracks = False
-        rec = pycolmap.triangulate_points(rec, db, img_dir, out, options=opts)
+        rec = _triangulate_posed(pycolmap, rec, db, img_dir, work / "sparse")
+        if off:
+            prog.note(f"posing {len(off)} photo(s) again from their matches")
+        fixed = reposed_photos(pycolmap, db, rec, posed, cameras, safe, off, errors, _posed_reconstruction) if off else {}
+        if fixed:   # posed again from their matches: triangulated again with them in
+            prog.note(f"triangulating again with {len(fixed)} photo(s) posed again")
+            cameras = [with_pose(c, fixed[s]["cam_from_world"]) if s in fixed else c for c, s in zip(cameras, safe)]
+            off = [s for s in off if s not in fixed]
+            rec = _posed_reconstruction(pycolmap, db, cameras, safe, skip=set(off))
+            add_guided_matches(pycolmap, db, rec, [p for p in _neighbour_pairs(cameras, safe, k=GUIDED_NEIGHBOURS)
+                                                   if set(p) & set(fixed) and not set(p) & set(off)])
+            rec = _triangulate_posed(pycolmap, rec, db, img_dir, work / "sparse2")
         prog.stage("done")
     except Exception as exc:
         raise RuntimeError(f"pycolmap triangulation failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}") from None
     finally:
         prog.close()
-    return rec, errors, off
+    return rec, errors, off, fixed
+
+
+def _triangulate_posed(pycolmap, rec, db, img_dir, out):
+    """pycolmap's point triangulator on the posed reconstruction ``rec`` (poses held fixed)."""
+    out.mkdir(exist_ok=True)
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.num_threads = sfm_threads()
+    opts.triangulation.min_angle = TRIANGULATION_MIN_ANGLE
+    opts.mapper.filter_min_tri_angle = TRIANGULATION_MIN_ANGLE
+    opts.triangulation.ignore_two_view_tracks = False
+    return pycolmap.triangulate_points(rec, db, img_dir, out, options=opts)
 
 
 def reprojection_errors(rec, cameras: list, names: list | None = None) -> np.ndarray:
