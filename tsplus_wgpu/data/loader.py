@@ -177,13 +177,13 @@ def load_scene(path=None, images=None, downscale=1, background=None, split="auto
         pts, cols, tracks, source = None, None, None, "none"
     elif pts is None or points in ("triangulate", "frusta"):
         pts, cols, source, tracks = initial_points(points, cameras, imgs, full(), bg, train_idx, bounds, cache_dir,
-                                                   progress, seed, warnings, left_out, test_idx, held_off, cameras)
+                                                   progress, seed, warnings, left_out, test_idx, held_off)
     else:
         from .colmap import colmap_tracks  # noqa: PLC0415
         tracks, source = colmap_tracks(rec, names), "sfm"
         if points == "most":
             pts, cols, tracks, source = most_points((pts, cols, tracks), full(), bg, train_idx, cache_dir, progress,
-                                                    warnings, left_out, test_idx, held_off, cameras)
+                                                    warnings, left_out, test_idx, held_off, reposed=cameras)
     train_idx, test_idx = [j for j in train_idx if j not in left_out], [j for j in test_idx if j not in held_off]
     pts, cols, tracks = _subsample(pts, cols, tracks, max_points, seed)
     return Scene(format=fmt, cameras=cameras, images=imgs, image_names=names, points=pts, point_colors=cols,

@@ -45,16 +45,17 @@ def triangulation_key(specs, background) -> str:
 
 
 def initial_points(points, cameras, imgs, specs, background, train_idx, bounds, cache_dir, progress, seed,
-                   warnings, left_out, test_idx=(), held_off=None, reposed=None):
+                   warnings, left_out, test_idx=(), held_off=None):
     """Initial points without SfM ones (or when asked): triangulated with pycolmap from the
     posed training images at their full size (:func:`triangulated`), else made from the camera
-    frusta. ``specs`` are the loaded frames at full size.
+    frusta. ``specs`` are the loaded frames at full size; a training photo the triangulation
+    poses again takes its new pose in ``cameras``.
     Returns ``(points, colours, source, track table or None)`` (:mod:`.tracks`; view ids index
     ``cameras``; None for frusta points)."""
     from .frusta import frusta_points  # noqa: PLC0415
     if points != "frusta":
         got = triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out, test_idx=test_idx,
-                           held_off=held_off, reposed=reposed)
+                           held_off=held_off, reposed=cameras)
         if got is not None:
             return got[0], got[1], "triangulated", got[2]
     pts, cols = frusta_points(cameras, imgs, bounds=bounds, seed=seed)
@@ -65,7 +66,7 @@ def initial_points(points, cameras, imgs, specs, background, train_idx, bounds, 
 
 def triangulated(specs, background, train_idx, cache_dir, progress, warnings, left_out,
                  fallback="initial points made from the camera frusta instead", test_idx=(), held_off=None,
-                 reposed=None):
+                 *, reposed):
     """``(points, colours, track table or None)`` triangulated with pycolmap from the posed
     training images (all images when fewer than 2 are for training) at their full size, cached
     (so every downscale reuses them); None, with the warning ``"<why>: <fallback>"``, when that
@@ -100,17 +101,16 @@ def triangulated(specs, background, train_idx, cache_dir, progress, warnings, le
                         f"{err[k] * 100:.2f} % of the image diagonal, the median photo's {np.nanmedian(err) * 100:.2f} "
                         "%): left out of training and of the triangulation; correct or remove it in the camera model")
         left_out.append(use[k])
-    _name_reposed(sub, use, info, warnings, reposed, left_out)
+    _name_reposed(sub, use, info, warnings, reposed)
     if held_off is not None and len(test_idx) and len(use) < len(specs):
         _check_held_out(specs, use, list(test_idx), background, info, progress, warnings, held_off)
     tracks = info.get("tracks")
     return pts, cols, None if tracks is None else remap(tracks, np.asarray(use, np.int64))
 
 
-def _name_reposed(sub, use, info, warnings, reposed, left_out):
+def _name_reposed(sub, use, info, warnings, reposed):
     """A warning for each photo of ``info`` posed again from its matches (:mod:`.poserepair`),
-    and its new pose given to its camera ``reposed[use[k]]`` (when ``reposed`` is None the photo
-    is left out, like one that could not be posed again)."""
+    and its new pose given to its camera ``reposed[use[k]]``."""
     from .poserepair import moved, with_pose  # noqa: PLC0415
     err = info.get("pose_error")
     typical = np.nanmedian(err) if err is not None and np.any(np.isfinite(err)) else float("nan")
@@ -118,11 +118,6 @@ def _name_reposed(sub, use, info, warnings, reposed, left_out):
         w2c = np.asarray(info["reposed_w2c"][j], np.float64)
         dist, turn = moved(sub[k].camera.world_to_camera, w2c)
         inl, m = (int(v) for v in info["reposed_matches"][j])
-        if reposed is None:
-            warnings.append(f"{sub[k].name}: its pose disagrees with its matches to the other photos: left out of "
-                            "training; correct or remove it in the camera model")
-            left_out.append(use[k])
-            continue
         warnings.append(f"{sub[k].name}: its pose disagrees with its matches to the other photos (epipolar error "
                         f"{err[k] * 100:.2f} % of the image diagonal, the median photo's {typical * 100:.2f} %): posed "
                         f"again from {inl} of its {m} matches to the triangulated points ({dist:.3g} units and "
@@ -159,7 +154,7 @@ def _check_held_out(specs, use, test_idx, background, info, progress, warnings, 
 
 
 def most_points(sfm, specs, background, train_idx, cache_dir, progress, warnings, left_out, test_idx=(),
-                held_off=None, reposed=None):
+                held_off=None, *, reposed):
     """``points="most"``: ``(points, colours, tracks, source)`` of the SfM points ``sfm``
     (``(points, colours, tracks)``) or of :func:`triangulated`'s, whichever are more; a
     warning says which."""

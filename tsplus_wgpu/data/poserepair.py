@@ -105,8 +105,8 @@ def reposed_photos(pycolmap, db, rec, posed, cameras, safe, off, errors, posed_r
     ``safe``, with ``cameras``) that their matches pose again (:func:`repose`) from the points of
     ``rec``, triangulated without them; ``posed`` is the posed reconstruction of every photo (its
     cameras at the keypoints' scale), ``errors`` :func:`~.posecheck.pose_errors` of it, and
-    ``posed_reconstruction`` :func:`~.sfm._posed_reconstruction`. A new pose is kept only when
-    the photo's epipolar error with it (every pair with a photo whose pose agrees) no longer
+    ``posed_reconstruction`` :func:`~.sfm._posed_reconstruction` (passed in: :mod:`.sfm` imports
+    this module). A new pose is kept only when the photo's epipolar error with it (every pair with a photo whose pose agrees) no longer
     disagrees by :mod:`.posecheck`'s rule; each photo is judged alone, never against another
     photo's wrong pose."""
     from .posecheck import FLOOR, RATIO, pose_errors  # noqa: PLC0415

@@ -320,7 +320,8 @@ def triangulate_frames(load_one, names: list, key: str, cache_dir: Path, progres
                     reposed = {k: z[k] for k in ("reposed", "reposed_w2c", "reposed_error", "reposed_matches")}
                     idx = reposed["reposed"].astype(np.int64)
                     if (len(pose_error) != len(names) or np.any((pose_off < 0) | (pose_off >= len(names)))
-                            or np.any((idx < 0) | (idx >= len(names))) or reposed["reposed_w2c"].shape != (len(idx), 3, 4)
+                            or np.any((idx < 0) | (idx >= len(names)))
+                            or reposed["reposed_w2c"].shape != (len(idx), 3, 4)
                             or not np.all(np.isfinite(reposed["reposed_w2c"]))):
                         raise ValueError("pose check of other images")
                     mark_used(work)
