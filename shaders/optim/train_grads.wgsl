@@ -1,7 +1,7 @@
 // Per vertex: the gradients of the trained parameters from the renderer's
 // (host: tsplus_wgpu.kernels.optim.TrainGrads; twin: tsplus_wgpu.reference.optim.train_grads).
 //   v_logits[v] = (v_opacity[v] + reg[v].x) * (1 - floor) * s (1 - s),  s = sigmoid(w[v])
-//     (reg: the early opacity loss's gradient per vertex, opacity_reg + a segmented sum;
+//     (reg: the early opacity loss's gradient per vertex, opacity_reg_count + opacity_reg_scale;
 //      read only when use_reg is 1)
 //   v_sh[v, k, c] = 0 for k >= active_k, in place (bands above the SH degree of the schedule
 //     are not trained yet); the SH parameters share the renderer's [N, K, 3] layout, so v_sh

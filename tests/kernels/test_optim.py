@@ -1,11 +1,11 @@
 """shaders/optim/: each kernel alone against its float64 twin (tsplus_wgpu.reference.optim):
-train_activate, train_grads, opacity_reg (and its per-vertex sum), depth_scale, adam."""
+train_activate, train_grads, opacity_reg_count and opacity_reg_scale, depth_scale, adam."""
 
 import numpy as np
 import pytest
 
 from tsplus_wgpu.gpu.stage import Scratch
-from tsplus_wgpu.kernels.optim import Adam, DepthScale, OpacityReg, OpacityRegGradient, TrainActivate, TrainGrads
+from tsplus_wgpu.kernels.optim import Adam, DepthScale, OpacityRegCount, OpacityRegGradient, OpacityRegScale, TrainActivate, TrainGrads
 import tsplus_wgpu.reference.optim as twin
 from scenes import submit as _run
 
@@ -69,33 +69,58 @@ def _reg_case(m):
 
 
 @pytest.mark.parametrize("m", [1, 50, 5000])
-def test_opacity_reg(ctx, m):
-    tri, op, _ = _reg_case(m)
-    stage = OpacityReg(ctx)
-    vals = ctx.buffer(16 * 3 * m)
-    _run(ctx, lambda enc: stage(enc, ctx.upload(tri.astype(np.uint32)), ctx.upload(op), vals, m, 1.9e-6))
-    got = ctx.read(vals, np.float32, 12 * m).reshape(3 * m, 4)
-    want = twin.opacity_reg(tri, op, 1.9e-6)
-    np.testing.assert_allclose(got, want, rtol=1e-6, atol=0)
-    assert np.count_nonzero(got[:, 0]) == m                 # one corner per triangle (ties resolved)
+def test_opacity_reg_count(ctx, m):
+    """The counts exactly (an integer stage), added to what the buffer holds."""
+    tri, op, n = _reg_case(m)
+    stage = OpacityRegCount(ctx)
+    counts = ctx.upload(np.full(n, 7, np.uint32))          # added to: 7 + the counts
+    _run(ctx, lambda enc: stage(enc, ctx.upload(tri.astype(np.uint32)), ctx.upload(op), counts, m))
+    got = ctx.read(counts, np.uint32, n).astype(np.int64) - 7
+    want = twin.opacity_reg_count(tri, op, n)
+    np.testing.assert_array_equal(got, want)
+    assert want.sum() == m                                # one corner per triangle (ties resolved)
+    if m >= 50:                                           # the ties do decide: not the first corner's vertex
+        assert not np.array_equal(want, np.bincount(tri[:, 0], minlength=n))
 
 
-@pytest.mark.parametrize("m,chunk", [(1, None), (50, None), (5000, None), (5000, 2**13)])
+@pytest.mark.parametrize("chunk", [None, 2**10])
+def test_opacity_reg_scale(ctx, monkeypatch, chunk):
+    """``chunk``: bindings of at most that many bytes: the vertices in ranges."""
+    import tsplus_wgpu.gpu.chunks as chunks
+    monkeypatch.setattr(chunks, "CHUNK_BYTES", chunk)
+    n = 3000
+    counts = np.random.default_rng(1).integers(0, 40, n).astype(np.uint32)
+    counts[:3] = (0, 1, 2**24 - 1)                        # the largest count f32 holds exactly
+    per = 1.9e-6 / 12345
+    out = ctx.upload(np.full((n, 4), 5.0, np.float32))
+    _run(ctx, lambda enc: OpacityRegScale(ctx)(enc, ctx.upload(counts), out, n, per))
+    got = ctx.read(out, np.float32, 4 * n).reshape(n, 4)
+    want = twin.opacity_reg_scale(counts, per)
+    np.testing.assert_allclose(got, want, rtol=2e-7, atol=0)
+
+
+@pytest.mark.parametrize("m,chunk", [(1, None), (50, None), (5000, None), (5000, 2**10)])
 def test_opacity_reg_gradient_matches_twin(ctx, monkeypatch, m, chunk):
-    """``chunk``: bindings of at most that many bytes: the corners in ranges of triangles and
-    their per-vertex sum a page of corners at a time."""
+    """``chunk``: bindings of at most that many bytes: the per-vertex scale in ranges of vertices.
+    The output's stale values must go: it is filled with garbage first, and the run repeated."""
     import tsplus_wgpu.gpu.chunks as chunks
     monkeypatch.setattr(chunks, "CHUNK_BYTES", chunk)
     tri, op, n = _reg_case(m)
     reg = OpacityRegGradient(ctx, Scratch(ctx))
     reg.set_topology(tri)
-    vals, out = ctx.buffer(16 * 3 * m), ctx.buffer(16 * n)
-    btri = ctx.upload(tri.astype(np.uint32))
-    _run(ctx, lambda enc: reg.record(enc, btri, ctx.upload(op), vals, out, 1.9e-6))
+    out = ctx.upload(np.full((n, 4), 3.0, np.float32))
+    btri, bop = ctx.upload(tri.astype(np.uint32)), ctx.upload(op)
+    for _ in range(2):                                    # the counts start from zero each time
+        _run(ctx, lambda enc: reg.record(enc, btri, bop, out, 1.9e-6, n))
     got = ctx.read(out, np.float32, 4 * n).reshape(n, 4)
     want = twin.opacity_reg_gradient(tri, op, 1.9e-6, n)
-    np.testing.assert_allclose(got[:, 0], want, rtol=1e-5, atol=1e-15)
+    np.testing.assert_allclose(got[:, 0], want, rtol=2e-7, atol=0)
     assert not np.any(got[:, 1:])
+    # the gather order the backward takes: corners sorted by vertex, stable
+    keys = ctx.read(reg.keys, np.uint32, 3 * m)
+    index = ctx.read(reg.index, np.uint32, 3 * m)
+    np.testing.assert_array_equal(keys, tri.reshape(-1)[index])
+    np.testing.assert_array_equal(index, np.argsort(tri.reshape(-1), kind="stable"))
 
 
 # ---------------------------------------------------------------------- adam

@@ -7,10 +7,10 @@
 * ``train_grads`` (:class:`TrainGrads`): renderer gradients -> parameter gradients:
   ``v_w = (v_o + reg) (1 - m) s (1 - s)``, and the bands of ``v_sh`` above the scheduled SH
   degree zeroed in place (``v_sh`` is then the SH parameters' gradient).
-* ``opacity_reg`` (:class:`OpacityReg`): the early opacity loss ``weight * mean_T o_T``, its
-  gradient per corner; :class:`OpacityRegGradient` sums the corners per vertex with
-  :class:`~tsplus_wgpu.kernels.reduce.SegmentSum` over the corners sorted by vertex (sorted
-  once per topology on the host).
+* ``opacity_reg_count`` and ``opacity_reg_scale`` (:class:`OpacityRegGradient`): the early
+  opacity loss ``weight * mean_T o_T``'s gradient per vertex, ``weight / M`` times the count of
+  triangles whose minimum opacity the vertex holds (counted with integer atomics: any order
+  gives the same count).
 * ``depth_scale`` (:class:`DepthScale`): per vertex, ``min(1, d / reach)`` with ``d`` its
   distance to the nearest training camera: the scale of its position learning rate.
 * ``adam`` (:class:`Adam`): one Adam step of one parameter group (two learning rates in one
@@ -28,7 +28,6 @@ import numpy as np
 from ..gpu import Stage, grid
 from ..gpu.chunks import Slice, binding_bytes
 from ..gpu.context import GpuContext
-from .reduce import SegmentSum
 
 
 class TrainActivate(Stage):
@@ -56,43 +55,59 @@ class TrainGrads(Stage):
                                               floor=floor)), profiler)
 
 
-class OpacityReg(Stage):
-    """Per triangle, the early opacity loss's gradient at its three corners: ``corner_vals [3M]``
-    vec4, ``weight / M`` in ``.x`` at the corner holding the minimum opacity."""
-    stage = "opacity_reg"
+class OpacityRegCount(Stage):
+    """Per triangle, one count for the vertex holding its minimum opacity: ``counts [N]`` u32,
+    added to (zero it first)."""
+    stage = "opacity_reg_count"
 
-    def __call__(self, enc, triangles, opacity, corner_vals, m, weight, profiler=None):
-        """In ranges of triangles where ``corner_vals`` outgrows one binding."""
-        per = float(weight) / max(m, 1)
-        self.dispatch_ranges(enc, m, dict(corner_vals=(corner_vals, 48)), dict(triangles=triangles, opacity=opacity),
-                             lambda s, c: dict(rp=self.uniform("RegParams", num_triangles=c, first=s, per_triangle=per)),
+    def __call__(self, enc, triangles, opacity, counts, m, profiler=None):
+        if m == 0:
+            return
+        self.dispatch(enc, self.groups(m), dict(cp=self.uniform("CountParams", num_triangles=int(m)),
+                                                triangles=triangles, opacity=opacity, counts=counts), profiler)
+
+
+class OpacityRegScale(Stage):
+    """Per vertex, ``out [N]`` vec4 with ``counts[v] * per_triangle`` in ``.x``."""
+    stage = "opacity_reg_scale"
+
+    def __call__(self, enc, counts, out, n, per_triangle, profiler=None):
+        """In ranges of vertices where ``out`` outgrows one binding."""
+        self.dispatch_ranges(enc, n, dict(counts=(counts, 4), out=(out, 16)), {},
+                             lambda s, c: dict(sp=self.uniform("ScaleParams", n=c, per_triangle=float(per_triangle))),
                              profiler)
 
 
 class OpacityRegGradient:
-    """The early opacity loss's gradient per vertex, on the device, deterministic.
+    """The early opacity loss's gradient per vertex, on the device, deterministic:
+    ``weight / M`` times the number of triangles whose minimum opacity the vertex holds
+    (:class:`OpacityRegCount`, integer atomics, then :class:`OpacityRegScale`).
 
-    ``set_topology`` (host, once per triangle list) sorts the corners by vertex; ``record``
-    writes per-corner values (:class:`OpacityReg`) and sums them per vertex into ``out``
-    (``[N]`` vec4, the gradient in ``.x``)."""
+    ``set_topology`` (host, once per triangle list) sorts the corners by vertex: the order the
+    backward's per-vertex gather takes (``DeviceModel.corner_order``); ``record`` writes the
+    gradient into ``out`` (``[N]`` vec4, the gradient in ``.x``)."""
 
     def __init__(self, ctx, scratch):
         self.ctx = ctx
-        self.kernel = OpacityReg(ctx)
-        self.sum = SegmentSum(ctx, scratch, "opacity_reg_sum")
+        self.scratch = scratch
+        self.count = OpacityRegCount(ctx)
+        self.scale = OpacityRegScale(ctx)
         self.keys = self.index = None
         self.m = 0
 
     def set_topology(self, triangles):
         tri = np.asarray(triangles, np.int64).reshape(-1)
         order = np.argsort(tri, kind="stable").astype(np.uint32)   # corners by vertex, in corner order
-        self.keys = self.ctx.upload(tri[order].astype(np.uint32), "opacity_reg_keys")
-        self.index = self.ctx.upload(order, "opacity_reg_index")
+        self.keys = self.ctx.upload(tri[order].astype(np.uint32), "corner_order_keys")
+        self.index = self.ctx.upload(order, "corner_order_index")
         self.m = len(tri) // 3
 
-    def record(self, enc, triangles, opacity, corner_vals, out, weight, profiler=None):
-        self.kernel(enc, triangles, opacity, corner_vals, self.m, weight, profiler)
-        self.sum.record(enc, self.keys, self.index, corner_vals, 3 * self.m, 1, out, profiler, "opacity_reg")
+    def record(self, enc, triangles, opacity, out, weight, n, profiler=None):
+        """``n`` vertices (``out`` holds at least that many)."""
+        counts = self.scratch.get("opacity_reg_counts", 4 * n)
+        enc.clear_buffer(counts, 0, 4 * n)
+        self.count(enc, triangles, opacity, counts, self.m, profiler)
+        self.scale(enc, counts, out, n, float(weight) / max(self.m, 1), profiler)
 
 
 def _bias(beta, step):
@@ -191,4 +206,4 @@ class Adam(Stage):
         return Slice(scale, first, 4 * hi - first), dict(scale_elem=elem, scale_first=first // 4)
 
 
-__all__ = ["TrainActivate", "TrainGrads", "OpacityReg", "OpacityRegGradient", "DepthScale", "Adam"]
+__all__ = ["TrainActivate", "TrainGrads", "OpacityRegCount", "OpacityRegScale", "OpacityRegGradient", "DepthScale", "Adam"]

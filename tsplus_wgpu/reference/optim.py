@@ -1,5 +1,5 @@
-"""Float64 twins of shaders/optim/, one function per kernel (same name), and of the per-vertex
-opacity-regulariser gradient (:func:`opacity_reg_gradient`: opacity_reg + segmented sum)."""
+"""Float64 twins of shaders/optim/, one function per kernel (same name), and the early opacity loss's gradient per vertex (:func:`opacity_reg_gradient`:
+``opacity_reg_count``, then ``opacity_reg_scale``)."""
 
 from __future__ import annotations
 
@@ -49,25 +49,27 @@ def min_corner(tri, op):
     return np.argmin(cand, axis=1)
 
 
-def opacity_reg(triangles, opacity, weight):
-    """``corner_vals [3M, 4]``: ``weight / M`` in ``.x`` at the corner of each triangle holding
-    the minimum opacity (ties to the lowest vertex index), 0 elsewhere (float64)."""
+def opacity_reg_count(triangles, opacity, num_vertices):
+    """``[N]`` int64: per vertex, the triangles whose minimum opacity it holds (ties to the lowest
+    vertex index)."""
     tri = np.asarray(triangles, np.int64).reshape(-1, 3)
-    op = np.asarray(opacity, np.float64)
-    m = len(tri)
-    out = np.zeros((3 * m, 4))
-    if m:
-        out[3 * np.arange(m) + min_corner(tri, op), 0] = weight / m
+    held = tri[np.arange(len(tri)), min_corner(tri, np.asarray(opacity, np.float64))]
+    return np.bincount(held, minlength=int(num_vertices))
+
+
+def opacity_reg_scale(counts, per_triangle):
+    """``[N, 4]`` float64: ``counts * per_triangle`` in ``.x``, 0 elsewhere."""
+    c = np.asarray(counts, np.float64)
+    out = np.zeros((len(c), 4))
+    out[:, 0] = c * float(per_triangle)
     return out
 
 
 def opacity_reg_gradient(triangles, opacity, weight, num_vertices):
     """d (weight * mean over triangles of min corner opacity) / d opacity, ``[N]`` float64
-    (ties to the lowest vertex index): :func:`opacity_reg` summed per vertex."""
-    tri = np.asarray(triangles, np.int64).reshape(-1, 3)
-    out = np.zeros(int(num_vertices))
-    np.add.at(out, tri.reshape(-1), opacity_reg(tri, opacity, weight)[:, 0])
-    return out
+    (ties to the lowest vertex index): ``weight / M`` times :func:`opacity_reg_count`."""
+    m = len(np.asarray(triangles).reshape(-1, 3))
+    return opacity_reg_scale(opacity_reg_count(triangles, opacity, num_vertices), float(weight) / max(m, 1))[:, 0]
 
 
 def _bias(beta, step):
@@ -98,5 +100,5 @@ def adam(param, grad, m, v, lr, step, beta1=BETA1, beta2=BETA2, eps=ADAM_EPS, sc
     return p, m, v
 
 
-__all__ = ["BETA1", "BETA2", "ADAM_EPS", "REINVERT_EPS", "sigmoid", "min_corner", "train_activate", "train_grads", "opacity_reg",
-           "opacity_reg_gradient", "depth_scale", "adam"]
+__all__ = ["BETA1", "BETA2", "ADAM_EPS", "REINVERT_EPS", "sigmoid", "min_corner", "train_activate", "train_grads", "opacity_reg_count",
+           "opacity_reg_scale", "opacity_reg_gradient", "depth_scale", "adam"]

@@ -139,15 +139,15 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
         ("v_logits", 4 * n), ("opacity_reg_vertex", 16 * n),
         ("colors", 16 * n), ("vertex_sums", 32 * n))]           # forward, backward
     out.append((V, "position_lr_scale", _scratch(4 * n)))          # the position step by depth (default on)
+    out.append((V, "opacity_reg_counts", _scratch(4 * n)))         # the early opacity loss's counts
     out += [(T, name, _buf(b)) for name, b in (
-        ("triangles", 12 * m), ("opacity_reg_corners", 48 * m), ("opacity_reg_keys", 12 * m),
-        ("opacity_reg_index", 12 * m), ("max_weight_acc", 4 * m),
+        ("triangles", 12 * m), ("corner_order_keys", 12 * m), ("corner_order_index", 12 * m),
+        ("max_weight_acc", 4 * m),
         ("tris", c["tri2d"] * m), ("pixel_rects", 16 * m), ("depth_keys", 4 * m), ("tri_ids", 4 * m),
         ("row_offsets", 4 * m), ("max_weight", 4 * m),                                  # forward
         ("tri_stats", 4 * c["nstat"] * m), ("corner_grads", 32 * 3 * m))]             # backward
     depth, scan_depth = _sort_scratch("depth_sort", m, 32, c)
-    out += [(T, name, b) for name, b in depth + _segment_scratch("corner_sum", 3 * m, 2, c)
-            + _segment_scratch("opacity_reg_sum", 3 * m, 1, c)]
+    out += [(T, name, b) for name, b in depth + _segment_scratch("corner_sum", 3 * m, 2, c)]
     out += [(X, name, _buf(b)) for name, b in (
         ("image", 12 * sub), ("final_t", 4 * sub), ("n_contrib", 8 * sub), ("tile_counts", 4 * tiles),
         ("ranges", 8 * tiles), ("backward_state", 16 * sub))]
@@ -188,7 +188,7 @@ def training_bytes(num_vertices, num_triangles, sh_degree, width, height, pairs,
 
 #: the buffers bound a range of vertices or triangles at a time, or read gathered per window of
 #: pairs (``gpu/chunks.py``): each must fit one buffer, not one binding
-CHUNKED = ("sh", "exp_avg_sh", "exp_avg_sq_sh", "v_sh", "tris", "tri_stats", "corner_grads", "opacity_reg_corners")
+CHUNKED = ("sh", "exp_avg_sh", "exp_avg_sq_sh", "v_sh", "tris", "tri_stats", "corner_grads")
 
 
 def largest_model(memory_bytes, sh_degree, width, height, pairs_per_pixel, triangles_per_vertex, supersample=1,

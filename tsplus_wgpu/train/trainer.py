@@ -4,7 +4,7 @@ Every step stays on the device: ``train_activate`` (opacity from logits with the
 floor, re-inverting the logits when it moves; SH to the renderer's layout) -> forward at the
 scheduled sigma -> :class:`~.losses.ImageLoss` (0.8 L1 + 0.2 D-SSIM) -> ``pack_v_out`` ->
 backward (gradients into reused device buffers, no readback) -> early opacity loss
-(``opacity_reg`` + segmented sum, while it < 5000 scaled) -> ``train_grads`` (chain rule of the
+(``opacity_reg_count`` + ``opacity_reg_scale``, while it < 5000 scaled) -> ``train_grads`` (chain rule of the
 opacity activation, SH bands above the scheduled degree masked) -> Adam per parameter group
 (positions, SH DC, SH rest, opacity logits) with the scheduled learning rates, the positions'
 scaled per vertex by depth (:mod:`.optimizer`).
@@ -168,7 +168,6 @@ class Trainer:
         self.gbuf = dict(v_positions=c.buffer(12 * n, "v_positions"), v_sh=c.buffer(12 * n * k, "v_sh", chunked=True),
                          v_opacity=c.buffer(4 * n, "v_opacity"))
         self.pgrad = dict(positions=self.gbuf["v_positions"], sh=self.gbuf["v_sh"], logits=c.buffer(4 * n, "v_logits"))
-        self.reg_vals = c.buffer(16 * 3 * m, "opacity_reg_corners", chunked=True)   # in ranges: gpu/chunks.py
         self.reg_out = c.buffer(16 * n, "opacity_reg_vertex")
         self.reg.set_topology(self.triangles_host)
         self.model.corner_order = (self.reg.keys, self.reg.index)   # the backward's gather order: no sort per step
@@ -289,8 +288,8 @@ class Trainer:
         enc = c.device.create_command_encoder()
         reg_w = s.opacity_reg_weight(it) if self.config.opacity_reg else 0.0
         if reg_w > 0:
-            self.reg.record(enc, self.model.buffers["triangles"], self.model.buffers["opacity"], self.reg_vals,
-                            self.reg_out, reg_w, profiler=op)
+            self.reg.record(enc, self.model.buffers["triangles"], self.model.buffers["opacity"], self.reg_out, reg_w,
+                            self.n, profiler=op)
         active_k = min(self.k, (s.sh_degree(it) + 1) ** 2)
         self.grads(enc, self.params["logits"], self.gbuf["v_sh"], self.gbuf["v_opacity"], self.reg_out,
                    self.pgrad["logits"], self.n, self.k, active_k, floor, reg_w > 0, profiler=op)
