@@ -3,7 +3,7 @@
 // o_T the min of T's corners' opacities, so its gradient at vertex v is weight / M times the
 // number of triangles whose minimum v holds: opacity_reg_scale.wgsl makes that product. Integer
 // atomics add in any order to the same count, so the result is deterministic.
-// (host: tsplus_wgpu.kernels.optim.OpacityRegGradient; twin: tsplus_wgpu.reference.optim.opacity_reg_counts)
+// (host: tsplus_wgpu.kernels.optim.OpacityRegGradient; twin: tsplus_wgpu.reference.optim.opacity_reg_count)
 #import dispatch
 
 struct CountParams {

@@ -1,6 +1,6 @@
 // Per vertex: the early opacity loss's gradient, out[v].x = counts[v] * weight / M (the counts of
 // opacity_reg_count.wgsl; one rounding of an exact integer times the per-triangle value).
-// (host: tsplus_wgpu.kernels.optim.OpacityRegGradient; twin: tsplus_wgpu.reference.optim.opacity_reg_gradient)
+// (host: tsplus_wgpu.kernels.optim.OpacityRegGradient; twin: tsplus_wgpu.reference.optim.opacity_reg_scale)
 #import dispatch
 
 struct ScaleParams {

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from tsplus_wgpu.gpu.stage import Scratch
+from tsplus_wgpu.render.device_model import corner_order
 from tsplus_wgpu.kernels.optim import Adam, DepthScale, OpacityRegCount, OpacityRegGradient, OpacityRegScale, TrainActivate, TrainGrads
 import tsplus_wgpu.reference.optim as twin
 from scenes import submit as _run
@@ -107,18 +108,18 @@ def test_opacity_reg_gradient_matches_twin(ctx, monkeypatch, m, chunk):
     monkeypatch.setattr(chunks, "CHUNK_BYTES", chunk)
     tri, op, n = _reg_case(m)
     reg = OpacityRegGradient(ctx, Scratch(ctx))
-    reg.set_topology(tri)
     out = ctx.upload(np.full((n, 4), 3.0, np.float32))
     btri, bop = ctx.upload(tri.astype(np.uint32)), ctx.upload(op)
     for _ in range(2):                                    # the counts start from zero each time
-        _run(ctx, lambda enc: reg.record(enc, btri, bop, out, 1.9e-6, n))
+        _run(ctx, lambda enc: reg.record(enc, btri, bop, out, 1.9e-6, n, m))
     got = ctx.read(out, np.float32, 4 * n).reshape(n, 4)
     want = twin.opacity_reg_gradient(tri, op, 1.9e-6, n)
     np.testing.assert_allclose(got[:, 0], want, rtol=2e-7, atol=0)
     assert not np.any(got[:, 1:])
     # the gather order the backward takes: corners sorted by vertex, stable
-    keys = ctx.read(reg.keys, np.uint32, 3 * m)
-    index = ctx.read(reg.index, np.uint32, 3 * m)
+    bkeys, bindex = corner_order(ctx, tri)
+    keys = ctx.read(bkeys, np.uint32, 3 * m)
+    index = ctx.read(bindex, np.uint32, 3 * m)
     np.testing.assert_array_equal(keys, tri.reshape(-1)[index])
     np.testing.assert_array_equal(index, np.argsort(tri.reshape(-1), kind="stable"))
 

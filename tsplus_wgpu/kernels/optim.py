@@ -81,33 +81,20 @@ class OpacityRegScale(Stage):
 class OpacityRegGradient:
     """The early opacity loss's gradient per vertex, on the device, deterministic:
     ``weight / M`` times the number of triangles whose minimum opacity the vertex holds
-    (:class:`OpacityRegCount`, integer atomics, then :class:`OpacityRegScale`).
-
-    ``set_topology`` (host, once per triangle list) sorts the corners by vertex: the order the
-    backward's per-vertex gather takes (``DeviceModel.corner_order``); ``record`` writes the
-    gradient into ``out`` (``[N]`` vec4, the gradient in ``.x``)."""
+    (:class:`OpacityRegCount`, integer atomics, then :class:`OpacityRegScale`). ``record``
+    writes it into ``out`` (``[N]`` vec4, the gradient in ``.x``)."""
 
     def __init__(self, ctx, scratch):
-        self.ctx = ctx
         self.scratch = scratch
         self.count = OpacityRegCount(ctx)
         self.scale = OpacityRegScale(ctx)
-        self.keys = self.index = None
-        self.m = 0
 
-    def set_topology(self, triangles):
-        tri = np.asarray(triangles, np.int64).reshape(-1)
-        order = np.argsort(tri, kind="stable").astype(np.uint32)   # corners by vertex, in corner order
-        self.keys = self.ctx.upload(tri[order].astype(np.uint32), "corner_order_keys")
-        self.index = self.ctx.upload(order, "corner_order_index")
-        self.m = len(tri) // 3
-
-    def record(self, enc, triangles, opacity, out, weight, n, profiler=None):
-        """``n`` vertices (``out`` holds at least that many)."""
+    def record(self, enc, triangles, opacity, out, weight, n, m, profiler=None):
+        """``n`` vertices (``out`` holds at least that many), ``m`` triangles."""
         counts = self.scratch.get("opacity_reg_counts", 4 * n)
         enc.clear_buffer(counts, 0, 4 * n)
-        self.count(enc, triangles, opacity, counts, self.m, profiler)
-        self.scale(enc, counts, out, n, float(weight) / max(self.m, 1), profiler)
+        self.count(enc, triangles, opacity, counts, m, profiler)
+        self.scale(enc, counts, out, n, float(weight) / max(m, 1), profiler)
 
 
 def _bias(beta, step):

@@ -77,3 +77,12 @@ class DeviceModel:
 
     def __repr__(self):
         return f"DeviceModel(vertices={self._n}, triangles={self._m}, sh={self._k})"
+
+
+def corner_order(ctx, triangles):
+    """``(vertex keys [3M], corner ids [3M])`` u32 buffers: the corners of ``triangles`` (host,
+    ``[M, 3]``) sorted by vertex, stably, as :attr:`DeviceModel.corner_order` takes them (sorted
+    once per topology on the host; the backward's per-vertex gather then needs no sort)."""
+    tri = np.asarray(triangles, np.int64).reshape(-1)
+    order = np.argsort(tri, kind="stable").astype(np.uint32)
+    return ctx.upload(tri[order].astype(np.uint32), "corner_order_keys"), ctx.upload(order, "corner_order_index")

@@ -52,7 +52,7 @@ from ..data.frame import WorldFrame
 from ..io.metrics import psnr, ssim  # noqa: F401  (re-exported: train.trainer.psnr/ssim)
 from ..kernels.loss import DownsampleArea, DownsampleAreaT, PackVOut, supersampled_camera
 from ..kernels.optim import OpacityRegGradient, TrainActivate, TrainGrads
-from ..render.device_model import DeviceModel
+from ..render.device_model import DeviceModel, corner_order
 from ..types import TriangleModel
 from .checkpoint import CheckpointError, read_checkpoint, resume_config, write_checkpoint
 from .config import TrainConfig
@@ -169,8 +169,7 @@ class Trainer:
                          v_opacity=c.buffer(4 * n, "v_opacity"))
         self.pgrad = dict(positions=self.gbuf["v_positions"], sh=self.gbuf["v_sh"], logits=c.buffer(4 * n, "v_logits"))
         self.reg_out = c.buffer(16 * n, "opacity_reg_vertex")
-        self.reg.set_topology(self.triangles_host)
-        self.model.corner_order = (self.reg.keys, self.reg.index)   # the backward's gather order: no sort per step
+        self.model.corner_order = corner_order(c, self.triangles_host)   # the backward's gather: no sort per step
         if self.normal_loss is not None:
             self.normal_loss.set_topology(self.triangles_host, n)
         self.topology.attach(c, m, state.max_weight)
@@ -289,7 +288,7 @@ class Trainer:
         reg_w = s.opacity_reg_weight(it) if self.config.opacity_reg else 0.0
         if reg_w > 0:
             self.reg.record(enc, self.model.buffers["triangles"], self.model.buffers["opacity"], self.reg_out, reg_w,
-                            self.n, profiler=op)
+                            self.n, self.m, profiler=op)
         active_k = min(self.k, (s.sh_degree(it) + 1) ** 2)
         self.grads(enc, self.params["logits"], self.gbuf["v_sh"], self.gbuf["v_opacity"], self.reg_out,
                    self.pgrad["logits"], self.n, self.k, active_k, floor, reg_w > 0, profiler=op)
