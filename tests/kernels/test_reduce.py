@@ -1,12 +1,14 @@
 """Kernels of shaders/reduce/, each alone on uploaded inputs, against its float64 twin
 (tsplus_wgpu/reference/reduce.py): max_reduce exactly; segment_up / segment_down / the
 composed SegmentSum: keys exactly, sums to float32 rounding (and bit for bit against the
-twin run in float32, which adds in the kernels' order)."""
+twin run in float32, which adds in the kernels' order); segment_gather bit for bit against
+SegmentSum itself."""
 
 import numpy as np
 import pytest
 
-from tsplus_wgpu.kernels.reduce import MaxReduce, SegmentDown, SegmentSum, SegmentUp
+from tsplus_wgpu.kernels.reduce import (MaxReduce, SegmentDown, SegmentGather, SegmentSum, SegmentUp, key_spans,
+                                        segment_levels)
 from tsplus_wgpu.gpu import Scratch
 from tsplus_wgpu.reference import reduce as twin
 from scenes import submit as _run
@@ -116,3 +118,92 @@ def test_segment_sum_in_pages(ctx, monkeypatch, n, width, num_keys, chunk):
     want = twin.segment_sum(keys, index, vals, n, width, num_keys)
     _close(got, want, vals, 4 * max(np.bincount(keys).max(), 1))
     assert not np.any(got[int(keys.max()) + 1:])
+
+
+def _long_runs(seed, n, lengths):
+    """Sorted keys [n]: runs of the given lengths at random places (each starting off a chunk
+    start on purpose, so that its head, middle and tail fall on different levels), the rest of
+    the elements in short runs, and some keys without elements."""
+    rng = np.random.default_rng(seed)
+    keys, key, pos = [], 0, 0
+    longs = list(lengths)
+    while pos < n:
+        if longs and rng.random() < 0.02:
+            length = longs.pop()
+        else:
+            length = int(rng.integers(1, 70))
+        length = min(length, n - pos)
+        keys += [key] * length
+        pos += length
+        key += 1 + int(rng.random() < 0.1)          # some keys have no elements
+    return np.asarray(keys, np.uint32)
+
+
+@pytest.mark.parametrize("n,lengths", [(1, []), (CHUNK, [CHUNK]), (3 * CHUNK + 5, [CHUNK + 3]),
+                                       (CHUNK * CHUNK + 300, [2 * CHUNK * CHUNK - 1000, 700, 129]),
+                                       (CHUNK ** 3 + 5000, [CHUNK * CHUNK * 3 + 17, 9000, CHUNK * CHUNK])])
+def test_segment_gather(ctx, n, lengths):
+    """One invocation per key over its own run gives SegmentSum's sums bit for bit: runs inside
+    a chunk, across chunks, and across chunks of chunks (two and three levels of the up-sweep);
+    keys without elements get zero (``out`` is written, not added to); within float32 rounding
+    of the float64 per-key sum."""
+    assert SegmentGather(ctx).chunk == CHUNK                      # the kernel's CHUNK is segment.wgsl's
+    keys = _long_runs(n, n, lengths)
+    rng = np.random.default_rng(n + 1)
+    index = rng.permutation(n).astype(np.uint32)
+    vals = rng.normal(size=(n, 2, 4)).astype(np.float32)
+    num_keys = int(keys.max()) + 3
+    spans = key_spans(keys, num_keys)
+    assert segment_levels(n, CHUNK) == twin._levels(n)
+    bufs = {name: ctx.upload(a, name) for a, name in ((keys, "keys"), (index, "index"), (vals, "vals"),
+                                                      (spans, "spans"))}
+    ss = SegmentSum(ctx, Scratch(ctx), "test_gather_sum")
+    want_out = ctx.buffer(32 * num_keys, "want")
+    _run(ctx, lambda enc: ss.record(enc, bufs["keys"], bufs["index"], bufs["vals"], n, 2, want_out))
+    got_out = ctx.upload(np.full((num_keys, 2, 4), np.nan, np.float32), "got")   # overwritten, not added to
+    _run(ctx, lambda enc: SegmentGather(ctx)(enc, bufs["spans"], bufs["index"], bufs["vals"], got_out, num_keys, n))
+    got = ctx.read(got_out, np.float32, 8 * num_keys).reshape(num_keys, 2, 4)
+    np.testing.assert_array_equal(got, ctx.read(want_out, np.float32, 8 * num_keys).reshape(num_keys, 2, 4))
+    np.testing.assert_array_equal(got, twin.segment_gather(spans, index, vals, n, np.float32))
+    plain = np.zeros((num_keys, 2, 4))
+    np.add.at(plain, keys, vals[index].astype(np.float64))
+    np.testing.assert_allclose(twin.segment_gather(spans, index, vals, n), plain, rtol=0, atol=1e-9)
+    longest = int(np.bincount(keys).max())
+    _close(got, plain, vals, longest)
+    if n > CHUNK * CHUNK:                                         # a plain in-order sum would differ here
+        sequential = np.zeros((num_keys, 2, 4), np.float32)
+        for k in range(num_keys):
+            for e in range(*spans[k]):
+                sequential[k] = sequential[k] + vals[index[e]]
+        assert not np.array_equal(got, sequential)
+
+
+def test_segment_gather_in_ranges(ctx, monkeypatch):
+    """Spans and sums larger than one binding (forced small): the keys in ranges, each range's
+    spans and sums bound from its first key; the same bits as one range."""
+    import tsplus_wgpu.gpu.chunks as chunks
+    n = 20000
+    keys = _long_runs(3, n, [300])
+    num_keys = int(keys.max()) + 1
+    rng = np.random.default_rng(4)
+    index = rng.permutation(n).astype(np.uint32)
+    vals = rng.normal(size=(n, 2, 4)).astype(np.float32)
+    spans = key_spans(keys, num_keys)
+    bufs = [ctx.upload(a, name) for a, name in ((spans, "spans"), (index, "index"), (vals, "vals"))]
+    monkeypatch.setattr(chunks, "CHUNK_BYTES", 2**12)
+    assert 32 * num_keys > 3 * 2**12
+    out = ctx.buffer(32 * num_keys, "out")
+    _run(ctx, lambda enc: SegmentGather(ctx)(enc, *bufs, out, num_keys, n))
+    got = ctx.read(out, np.float32, 8 * num_keys).reshape(num_keys, 2, 4)
+    np.testing.assert_array_equal(got, twin.segment_gather(spans, index, vals, n, np.float32))
+
+
+def test_segment_gather_fits():
+    """Runs past MAX_RUN (lavapipe's loop budget) or values past one binding take SegmentSum."""
+    class _Ctx:
+        limits = {"max-storage-buffer-binding-size": 2**27, "max-buffer-size": 2**28}
+    g = SegmentGather.__new__(SegmentGather)
+    g.ctx, g.chunk = _Ctx(), CHUNK
+    assert g.fits(3_000_000, SegmentGather.MAX_RUN)
+    assert not g.fits(3_000_000, SegmentGather.MAX_RUN + 1)
+    assert not g.fits(2**27 // 32 + 1, 10)

@@ -306,6 +306,30 @@ def test_pair_windows_cover_every_tile_once():
         pair_windows(1000, 100, 100)
 
 
+def test_corner_gather_gives_the_segmented_sums_bits(renderer, monkeypatch):
+    """The corner -> vertex sum per vertex (SegmentGather over the runs of the sorted corners)
+    runs for host models and gives the segmented sum's gradients bit for bit."""
+    from tsplus_wgpu.kernels.reduce import SegmentGather
+    from tsplus_wgpu.render.backward import BackwardPass
+    model, cam = f32_exact(*random_scene(9, 48, 40, sheets=3, points_per_sheet=12, sh_k=4))
+    assert 3 * model.num_triangles > ref.reduce.CHUNK                 # sums over two levels
+    rng = np.random.default_rng(5)
+    vi, vt = rng.normal(size=(40, 48, 3)), rng.normal(size=(40, 48))
+    res = renderer.forward(model, cam, 0.5, BG)
+    calls = []
+    real = SegmentGather.__call__
+    monkeypatch.setattr(SegmentGather, "__call__", lambda self, *a, **k: calls.append(1) or real(self, *a, **k))
+    got = BackwardPass(renderer).run(res, vi, vt)
+    assert calls                                                          # the gather ran
+    monkeypatch.setattr(SegmentGather, "fits", lambda self, n, longest: False)
+    calls.clear()
+    want = BackwardPass(renderer).run(res, vi, vt)                        # the segmented sum
+    assert not calls
+    for name in GROUPS:
+        assert np.array_equal(getattr(got, name), getattr(want, name)), name
+    assert np.any(got.v_positions != 0)
+
+
 def test_corner_order_cache_follows_topology(renderer):
     """The corner order (sorted by vertex) is kept per topology for host models: the same
     model again, and then another topology with as many vertices and triangles, give

@@ -263,8 +263,9 @@ def test_densify_stop_criterion():
 
 def test_trainer_hands_the_backward_its_corner_order(renderer, tiny):
     """The backward gathers corner gradients per vertex in the stable order of the corners by
-    vertex; the trainer gives it the opacity loss's copy (sorted once per topology) instead of a
-    radix sort per step: it must be exactly that order, after a topology edit too."""
+    vertex; the trainer gives it that order (sorted once per topology) instead of a radix sort
+    per step, and each vertex's run of it (the per-vertex gather's spans): they must be exactly
+    those, after a topology edit too."""
     from tsplus_wgpu.train.trainer import TrainConfig, Trainer
     t = Trainer(tiny, TrainConfig(iterations=300, quick=True), renderer=renderer)
 
@@ -274,6 +275,12 @@ def test_trainer_hands_the_backward_its_corner_order(renderer, tiny):
         want = np.argsort(tri, kind="stable")
         np.testing.assert_array_equal(t.ctx.read(index, np.uint32, 3 * t.m), want)
         np.testing.assert_array_equal(t.ctx.read(keys, np.uint32, 3 * t.m), tri[want])
+        spans, longest = t.model.corner_spans
+        got = t.ctx.read(spans, np.uint32, 2 * t.n).reshape(t.n, 2)
+        counts = np.bincount(tri, minlength=t.n)
+        np.testing.assert_array_equal(got[:, 1] - got[:, 0], counts)
+        np.testing.assert_array_equal(got[:, 0], np.searchsorted(tri[want], np.arange(t.n)))
+        assert longest == counts.max()
     check()
     t.apply_topology(next(i for i in range(1, 301) if t.sched.is_densify_step(i)))
     assert t.topology.events[-1].get("split", 0) > 0          # the topology changed

@@ -84,16 +84,17 @@ class Stage:
         cp.end()
 
 
-    def dispatch_ranges(self, encoder, n, ranged, fixed, uniforms, profiler=None):
+    def dispatch_ranges(self, encoder, n, ranged, fixed, uniforms, profiler=None, label=None):
         """Dispatch over ``n`` items (one invocation each), a range of them at a time where an
         array of ``ranged`` ``{binding: (buffer, bytes per item)}`` outgrows one binding
         (:func:`~.chunks.item_chunks`; the kernel sees its range of each from index 0). ``fixed``
         ``{binding: buffer}`` is bound whole; ``uniforms(start, count)`` gives the range's
-        uniform bindings. One range: every buffer bound whole, as :meth:`dispatch` does."""
+        uniform bindings. One range: every buffer bound whole, as :meth:`dispatch` does. ``label``:
+        the profiler's name for it (default: the stage's)."""
         chunks = item_chunks(self.ctx, n, [w for _, w in ranged.values()])
         for start, count in chunks:
             bound = {k: b if len(chunks) == 1 else item_slice(b, start, count, w) for k, (b, w) in ranged.items()}
-            self.dispatch(encoder, self.groups(count), dict(fixed, **uniforms(start, count), **bound), profiler)
+            self.dispatch(encoder, self.groups(count), dict(fixed, **uniforms(start, count), **bound), profiler, label)
 
 
 class Scratch:

@@ -1,10 +1,14 @@
 """Host classes of shaders/reduce/: the max reduction (``max_reduce``) and the deterministic
-segmented sum (``segment_up``, ``segment_down``; composed by :class:`SegmentSum`)."""
+segmented sum (``segment_up``, ``segment_down``; composed by :class:`SegmentSum`), and
+``segment_gather`` (:class:`SegmentGather`): the same sums per key, bit for bit, for keys
+whose runs are known (sorted once, reused)."""
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..gpu import Stage
-from ..gpu.chunks import ALL, pages
+from ..gpu.chunks import ALL, binding_bytes, pages
 
 
 class MaxReduce(Stage):
@@ -102,4 +106,51 @@ class SegmentSum:
                               profiler, label, vals_range, keys_range)
 
 
-__all__ = ["MaxReduce", "SegmentUp", "SegmentDown", "SegmentSum"]
+def segment_levels(n, chunk):
+    """The coarsest level of :class:`SegmentSum` over ``n`` elements (its up-sweeps)."""
+    top, n = 0, int(n)
+    while n > chunk:
+        n = (n + chunk - 1) // chunk
+        top += 1
+    return top
+
+
+def key_spans(keys, num_keys):
+    """``[num_keys, 2]`` u32: each key's run ``[a, b)`` in the elements sorted by key (host;
+    ``keys`` sorted or not: only their counts matter), as :class:`SegmentGather` reads them."""
+    counts = np.bincount(np.asarray(keys, np.int64).reshape(-1), minlength=int(num_keys))[:int(num_keys)]
+    ends = np.cumsum(counts)
+    return np.stack([ends - counts, ends], axis=1).astype(np.uint32)
+
+
+class SegmentGather(Stage):
+    """:class:`SegmentSum`'s result for elements of two vec4s, with its additions in its order
+    (the same bits where SegmentSum fits one binding), one invocation per key over the key's own
+    run ``spans[key] = [a, b)`` of the ``n`` sorted elements (:func:`key_spans`); element i's
+    value is ``vals[index[i] * 2:]``. ``out [keys, 2]`` vec4 is written, not added to. For
+    runs of at most :attr:`MAX_RUN` elements (lavapipe's loop budget) and ``vals`` within one
+    binding (:meth:`fits`); else take :class:`SegmentSum`."""
+
+    stage = "segment_gather"
+    #: the longest run one invocation sums (lavapipe ends an invocation after 65535 loop iterations)
+    MAX_RUN = 16384
+
+    def __init__(self, ctx, constants=None):
+        super().__init__(ctx, constants)
+        self.chunk = self.const("CHUNK")
+
+    def fits(self, n, longest_run):
+        """Whether ``n`` elements (their values bound whole) with runs of at most ``longest_run`` fit."""
+        return (int(longest_run) <= self.MAX_RUN and 32 * int(n) <= binding_bytes(self.ctx)
+                and segment_levels(n, self.chunk) <= 4)
+
+    def __call__(self, enc, spans, index, vals, out, num_keys, n, profiler=None, label=None):
+        """``num_keys`` keys (in ranges of keys where ``spans`` or ``out`` outgrow a binding), ``n`` elements."""
+        if num_keys == 0:
+            return
+        top = segment_levels(n, self.chunk)
+        self.dispatch_ranges(enc, num_keys, dict(spans=(spans, 8), out=(out, 32)), dict(index=index, vals=vals),
+                             lambda s, c: dict(gp=self.uniform("GatherParams", count=c, top=top)), profiler, label)
+
+
+__all__ = ["MaxReduce", "SegmentUp", "SegmentDown", "SegmentSum", "SegmentGather", "key_spans", "segment_levels"]

@@ -1,6 +1,7 @@
 """Float64 twins of ``shaders/reduce/``: ``max_reduce`` and the deterministic segmented sum
 (``segment_up``, ``segment_down``, and ``segment_sum``, the two composed level by level as
-:class:`~tsplus_wgpu.kernels.reduce.SegmentSum` does). Values are ``vec4`` lanes: an
+:class:`~tsplus_wgpu.kernels.reduce.SegmentSum` does), and ``segment_gather``, the same sums
+per key in the same order. Values are ``vec4`` lanes: an
 element's value is ``[width, 4]``. ``dtype=np.float32`` adds in float32, in the kernels'
 order (their sums are plain float additions, so that reproduces them bit for bit)."""
 
@@ -95,4 +96,55 @@ def segment_sum(keys, index, vals, n, width, num_keys, dtype=np.float64):
     return out
 
 
-__all__ = ["CHUNK", "max_reduce", "segment_up", "segment_down", "segment_sum"]
+def _levels(n):
+    """The coarsest level of the segmented sum over ``n`` elements."""
+    top = 0
+    while n > CHUNK:
+        n = -(-n // CHUNK)
+        top += 1
+    return top
+
+
+def segment_gather(spans, index, vals, n, dtype=np.float64):
+    """``out [keys, 2, 4]``: per key the sum of the values of its run ``spans[key] = [a, b)`` of
+    the ``n`` sorted elements (``vals [*, 2, 4]`` read through ``index``), added as
+    :func:`segment_sum` adds them (so in float32 the same bits): on level l the run is
+    ``[a_l, b_l)`` (``a_{l+1} = ceil(a_l / CHUNK)``, the same for b), level l + 1's element c the
+    in-order sum of level l's ``[c CHUNK, min((c + 1) CHUNK, b_l))``; from the coarsest level
+    down, ``total = head + total`` where the run does not start at a chunk start (head: up to the
+    chunk's end), and the whole run on the top level."""
+    spans = np.asarray(spans, np.int64).reshape(-1, 2)
+    vals = np.asarray(vals).reshape(-1, 2, 4).astype(dtype)
+    index = np.asarray(index, np.int64)
+    top = _levels(int(n))
+    out = np.zeros((len(spans), 2, 4), dtype)
+
+    def element(level, c, b0):
+        if level == 0:
+            return vals[index[c]]
+        end = b0
+        for _ in range(level - 1):
+            end = -(-end // CHUNK)
+        s = np.zeros((2, 4), dtype)
+        for i in range(c * CHUNK, min(c * CHUNK + CHUNK, end)):
+            s = s + element(level - 1, i, b0)
+        return s
+
+    for key, (a0, b0) in enumerate(spans):
+        total = np.zeros((2, 4), dtype)
+        for level in range(top, -1, -1):
+            al, bl = a0, b0
+            for _ in range(level):
+                al, bl = -(-al // CHUNK), -(-bl // CHUNK)
+            if al >= bl or (level < top and al % CHUNK == 0):
+                continue
+            hi = bl if level == top else min(bl, (al // CHUNK + 1) * CHUNK)
+            s = np.zeros((2, 4), dtype)
+            for c in range(al, hi):
+                s = s + element(level, c, b0)
+            total = s + total
+        out[key] = total
+    return out
+
+
+__all__ = ["CHUNK", "max_reduce", "segment_up", "segment_down", "segment_sum", "segment_gather"]

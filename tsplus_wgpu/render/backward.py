@@ -17,7 +17,9 @@ Stages, each a ``shaders/<group>/<kernel>.wgsl`` with a class of the same name i
 3. ``project_backward`` (per triangle): exact chain rule to its three corners.
 4. corner -> vertex: the triangle index buffer sorted by vertex with the stable
    :class:`RadixSort` (values: corner indices), so each vertex's corners come in order;
-   :class:`SegmentSum` of their gradients per vertex.
+   :class:`SegmentSum` of their gradients per vertex. Where each vertex's run of the sorted
+   corners is known (a host model's, or a ``DeviceModel``'s ``corner_spans``),
+   :class:`SegmentGather` instead: the same sums to the bit, one invocation per vertex.
 5. ``vertex_backward`` (per vertex): the SH chain rule.
 
 Every float sum has a fixed order, so the gradients are bit-identical from run to run on
@@ -38,7 +40,7 @@ import wgpu
 from ..gpu.chunks import binding_bytes, pair_windows
 from ..gpu.recorder import Recorder
 from ..kernels.backward import NSTAT, BackwardPrepare, ProjectBackward, VertexBackward, backward_stage
-from ..kernels.reduce import SegmentSum
+from ..kernels.reduce import SegmentGather, SegmentSum, key_spans
 from ..kernels.sort import RadixSort
 from ..types import Grads, TriangleModel, check_cotangents
 
@@ -62,10 +64,11 @@ class BackwardPass:
         self.pair_sort = RadixSort(c, renderer.scratch, "pair_sort")
         self.pair_sum = SegmentSum(c, renderer.scratch, "pair_sum")
         self.corner_sum = SegmentSum(c, renderer.scratch, "corner_sum")
+        self.corner_gather = SegmentGather(c)
         self.project = ProjectBackward(c)
         self.vertex = VertexBackward(c)
         self.corner_sort = RadixSort(c, renderer.scratch, "corner_sort")
-        self._corner_cache = None   # (topology key, sorted corner keys, corner ids)
+        self._corner_cache = None   # (topology key, sorted corner keys, corner ids, (spans, longest))
         self._ids = None            # (buffer of 0, 1, ..., its count): _pair_ids
         #: the most pairs whose statistics one window holds (None: as many as one binding of
         #: the device holds; tests set fewer to exercise the windows)
@@ -89,7 +92,8 @@ class BackwardPass:
         return self._ids[0]
 
     def _corner_order(self, enc, model, triangles, m, n, profiler):
-        """The corners sorted by vertex (stable): (vertex keys, corner ids) buffers.
+        """The corners sorted by vertex (stable): (vertex keys, corner ids) buffers, and each
+        vertex's run of them ``(spans buffer, longest run)`` or None.
 
         It depends only on the index buffer, so for a host :class:`TriangleModel` it is
         kept for the next call with the same topology, keyed on the index array's content
@@ -101,10 +105,10 @@ class BackwardPass:
             idx = np.ascontiguousarray(model.triangles, dtype=np.uint32)
             key = (int(n), int(m), hashlib.blake2b(idx.tobytes(), digest_size=20).digest())
             if self._corner_cache is not None and self._corner_cache[0] == key:
-                return self._corner_cache[1], self._corner_cache[2]
+                return self._corner_cache[1:]
         known = getattr(model, "corner_order", None)   # a DeviceModel whose owner knows the order
         if known is not None:
-            return known
+            return known[0], known[1], getattr(model, "corner_spans", None)
         c = self.ctx
         keys = c.buffer(12 * m, "corner_keys")
         vals = c.upload(np.arange(3 * m, dtype=np.uint32), "corner_ids")
@@ -112,13 +116,16 @@ class BackwardPass:
         bits = max(1, int(n - 1).bit_length())
         skeys, svals = self.corner_sort.record(enc, keys, vals, 3 * m, bits, profiler)
         if key is None:
-            return skeys, svals
+            return skeys, svals, None
         # owned copies (the sort may leave its result in scratch buffers shared by later calls)
         ck, cv = c.buffer(12 * m, "corner_keys_sorted"), c.buffer(12 * m, "corner_ids_sorted")
         enc.copy_buffer_to_buffer(skeys, 0, ck, 0, 12 * m)
         enc.copy_buffer_to_buffer(svals, 0, cv, 0, 12 * m)
-        self._corner_cache = (key, ck, cv)
-        return ck, cv
+        spans = key_spans(idx, n)
+        longest = int((spans[:, 1] - spans[:, 0]).max(initial=0))
+        spans = (c.upload(spans if n else np.zeros((1, 2), np.uint32), "corner_spans"), longest)
+        self._corner_cache = (key, ck, cv, spans)
+        return ck, cv, spans
 
     def run(self, result, v_image, v_transmittance=None, profile=False, read=True, out=None):
         """The backward pass of ``result``.
@@ -242,9 +249,13 @@ class BackwardPass:
         self.project(rec.encoder, params, dev["positions"], dev["triangles"], dev["opacity"], b["colors"],
                      b["tris"], b["pixel_rects"], buf["tri_stats"], buf["corner_grads"], m, prof)
         flush("project_backward")
-        skeys, svals = self._corner_order(rec.encoder, model, dev["triangles"], m, n, prof)
-        self.corner_sum.record(rec.encoder, skeys, svals, buf["corner_grads"], 3 * m, 2, buf["vertex_sums"], prof,
-                               "corner_sum", num_keys=n)
+        skeys, svals, spans = self._corner_order(rec.encoder, model, dev["triangles"], m, n, prof)
+        if spans is not None and self.corner_gather.fits(3 * m, spans[1]):   # the same sums, per vertex
+            self.corner_gather(rec.encoder, spans[0], svals, buf["corner_grads"], buf["vertex_sums"], n, 3 * m, prof,
+                               "corner_sum")
+        else:
+            self.corner_sum.record(rec.encoder, skeys, svals, buf["corner_grads"], 3 * m, 2, buf["vertex_sums"], prof,
+                                   "corner_sum", num_keys=n)
         flush("corner_sum")
         self.vertex(rec.encoder, params, dev["positions"], dev["sh"], buf["vertex_sums"], out["v_positions"],
                     out["v_sh"], out["v_opacity"], n, prof, model.sh_size)

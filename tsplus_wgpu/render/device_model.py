@@ -45,6 +45,10 @@ class DeviceModel:
         #: vertex (stable), set by an owner that knows them (the backward pass then skips its
         #: sort). The owner must keep it in step with ``triangles``; None: sorted every backward.
         self.corner_order = None
+        #: optional ``(spans buffer [N] vec2 u32, longest)``: each vertex's run ``[a, b)`` of
+        #: ``corner_order`` and the longest run (:func:`corner_spans`), so the backward sums each
+        #: vertex's corners in one invocation (``SegmentGather``); None: the segmented sum.
+        self.corner_spans = None
 
     @classmethod
     def from_model(cls, renderer, model: TriangleModel):
@@ -86,3 +90,13 @@ def corner_order(ctx, triangles):
     tri = np.asarray(triangles, np.int64).reshape(-1)
     order = np.argsort(tri, kind="stable").astype(np.uint32)
     return ctx.upload(tri[order].astype(np.uint32), "corner_order_keys"), ctx.upload(order, "corner_order_index")
+
+
+def corner_spans(ctx, triangles, num_vertices):
+    """``(spans buffer, longest)`` as :attr:`DeviceModel.corner_spans` takes them: each vertex's
+    run ``[a, b)`` in :func:`corner_order`'s sorted corners (``[N, 2]`` u32), and the most corners
+    one vertex has."""
+    from ..kernels.reduce import key_spans
+    spans = key_spans(np.asarray(triangles, np.int64).reshape(-1), num_vertices)
+    longest = int((spans[:, 1] - spans[:, 0]).max(initial=0))
+    return ctx.upload(spans if len(spans) else np.zeros((1, 2), np.uint32), "corner_spans"), longest

@@ -8,14 +8,16 @@ backward pass, when the forward's buffers are still held) with the size the code
   as they are) and opacity logits, each with Adam's two moments; the renderer's opacity; the
   renderer's gradients (``v_positions`` and ``v_sh`` are the parameters' too) and the logits'
   gradient; the opacity loss's per-vertex sums; the forward's colours and the backward's vertex
-  sums; the position step's scale by depth (``position_lr_depth``, on by default; 4 bytes a
+  sums and each vertex's run of the corners sorted by vertex (``corner_spans``, its per-vertex
+  gather); the position step's scale by depth (``position_lr_depth``, on by default; 4 bytes a
   vertex more than a run without it).
-* **per triangle**: the index buffer, the opacity loss's corners and their order by vertex, the
+* **per triangle**: the index buffer, the corners' order by vertex, the
   topology's running max weight; the forward's projected record ``Tri2D`` (size read from the
   WGSL), pixel boxes, depth keys and order, row offsets, max weights and the depth sort's
-  scratch; the backward's per-triangle statistics, corner gradients and the segmented sums'
-  scratch (the corners' order by vertex is the opacity loss's, which the trainer hands to the
-  backward as the model's ``corner_order``: no sort per step).
+  scratch; the backward's per-triangle statistics and corner gradients (the corners' order by
+  vertex is sorted once per topology and handed to the backward as the model's
+  ``corner_order``: no sort per step; the segmented sum's scratch only where the corner gradients
+  outgrow one binding, ``max_binding``, and the per-vertex gather gives way to it).
 * **per pixel** (at the supersampled size ``s^2 W H`` unless marked): image, transmittance,
   per-pixel counts, the backward's state and its vec4 input; tile counts and ranges; at ``W H``:
   the loss's (``ImageLoss``: 112 bytes a pixel, and ``v_image``) and the downsampled image.
@@ -137,7 +139,7 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
         ("render_opacity", 4 * n),
         ("v_positions", 12 * n), ("v_sh", 12 * n * k), ("v_opacity", 4 * n),
         ("v_logits", 4 * n), ("opacity_reg_vertex", 16 * n),
-        ("colors", 16 * n), ("vertex_sums", 32 * n))]           # forward, backward
+        ("colors", 16 * n), ("vertex_sums", 32 * n), ("corner_spans", 8 * n))]           # forward, backward
     out.append((V, "position_lr_scale", _scratch(4 * n)))          # the position step by depth (default on)
     out.append((V, "opacity_reg_counts", _scratch(4 * n)))         # the early opacity loss's counts
     out += [(T, name, _buf(b)) for name, b in (
@@ -147,7 +149,10 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
         ("row_offsets", 4 * m), ("max_weight", 4 * m),                                  # forward
         ("tri_stats", 4 * c["nstat"] * m), ("corner_grads", 32 * 3 * m))]             # backward
     depth, scan_depth = _sort_scratch("depth_sort", m, 32, c)
-    out += [(T, name, b) for name, b in depth + _segment_scratch("corner_sum", 3 * m, 2, c)]
+    out += [(T, name, b) for name, b in depth]
+    if max_binding is not None and 32 * 3 * m > int(max_binding):
+        # the corner gradients past one binding: the segmented sum in pages, not the per-vertex gather
+        out += [(T, name, b) for name, b in _segment_scratch("corner_sum", 3 * m, 2, c)]
     out += [(X, name, _buf(b)) for name, b in (
         ("image", 12 * sub), ("final_t", 4 * sub), ("n_contrib", 8 * sub), ("tile_counts", 4 * tiles),
         ("ranges", 8 * tiles), ("backward_state", 16 * sub))]

@@ -60,7 +60,7 @@ import numpy as np
 from ..data.normals import PRIOR_MAX_LENGTH, PRIOR_MIN_LENGTH, prepare_prior
 from ..kernels.normals import NormalAccumulate, NormalBackward, NormalModel
 from ..kernels.reduce import SegmentSum
-from ..render.device_model import DeviceModel
+from ..render.device_model import DeviceModel, corner_spans
 from ..types import TriangleModel
 
 
@@ -149,6 +149,7 @@ class NormalLoss:
         self.dm = DeviceModel(c, bufs, 3 * m, m, 1)
         # corner j of the unshared model is vertex j: already sorted, the backward skips its sort
         self.dm.corner_order = (bufs["triangles"], bufs["triangles"])
+        self.dm.corner_spans = corner_spans(c, np.arange(3 * m), 3 * m)
         self.grads = dict(v_positions=c.buffer(36 * m, "normal_v_corner_positions"),
                           v_sh=c.buffer(36 * m, "normal_v_corner_sh"),
                           v_opacity=c.buffer(12 * m, "normal_v_corner_opacity"))

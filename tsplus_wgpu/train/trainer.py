@@ -52,7 +52,7 @@ from ..data.frame import WorldFrame
 from ..io.metrics import psnr, ssim  # noqa: F401  (re-exported: train.trainer.psnr/ssim)
 from ..kernels.loss import DownsampleArea, DownsampleAreaT, PackVOut, supersampled_camera
 from ..kernels.optim import OpacityRegGradient, TrainActivate, TrainGrads
-from ..render.device_model import DeviceModel, corner_order
+from ..render.device_model import DeviceModel, corner_order, corner_spans
 from ..types import TriangleModel
 from .checkpoint import CheckpointError, read_checkpoint, resume_config, write_checkpoint
 from .config import TrainConfig
@@ -170,6 +170,7 @@ class Trainer:
         self.pgrad = dict(positions=self.gbuf["v_positions"], sh=self.gbuf["v_sh"], logits=c.buffer(4 * n, "v_logits"))
         self.reg_out = c.buffer(16 * n, "opacity_reg_vertex")
         self.model.corner_order = corner_order(c, self.triangles_host)   # the backward's gather: no sort per step
+        self.model.corner_spans = corner_spans(c, self.triangles_host, n)   # ... and one invocation per vertex
         if self.normal_loss is not None:
             self.normal_loss.set_topology(self.triangles_host, n)
         self.topology.attach(c, m, state.max_weight)
