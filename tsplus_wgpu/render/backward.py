@@ -40,8 +40,9 @@ import wgpu
 from ..gpu.chunks import binding_bytes, pair_windows
 from ..gpu.recorder import Recorder
 from ..kernels.backward import NSTAT, BackwardPrepare, ProjectBackward, VertexBackward, backward_stage
-from ..kernels.reduce import SegmentGather, SegmentSum, key_spans
+from ..kernels.reduce import SegmentGather, SegmentSum
 from ..kernels.sort import RadixSort
+from .device_model import corner_spans
 from ..types import Grads, TriangleModel, check_cotangents
 
 
@@ -121,9 +122,7 @@ class BackwardPass:
         ck, cv = c.buffer(12 * m, "corner_keys_sorted"), c.buffer(12 * m, "corner_ids_sorted")
         enc.copy_buffer_to_buffer(skeys, 0, ck, 0, 12 * m)
         enc.copy_buffer_to_buffer(svals, 0, cv, 0, 12 * m)
-        spans = key_spans(idx, n)
-        longest = int((spans[:, 1] - spans[:, 0]).max(initial=0))
-        spans = (c.upload(spans if n else np.zeros((1, 2), np.uint32), "corner_spans"), longest)
+        spans = corner_spans(c, idx, n)
         self._corner_cache = (key, ck, cv, spans)
         return ck, cv, spans
 
