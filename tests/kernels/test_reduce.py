@@ -120,41 +120,37 @@ def test_segment_sum_in_pages(ctx, monkeypatch, n, width, num_keys, chunk):
     assert not np.any(got[int(keys.max()) + 1:])
 
 
-def _long_runs(seed, n, lengths):
-    """Sorted keys [n]: runs of the given lengths at random places (each starting off a chunk
-    start on purpose, so that its head, middle and tail fall on different levels), the rest of
-    the elements in short runs, and some keys without elements."""
+def _placed_runs(seed, n, runs):
+    """Sorted keys [n]: the given runs ``(start, length)`` exactly there (each a key of its own),
+    the other elements in short runs of 1-69, and some keys without elements."""
     rng = np.random.default_rng(seed)
-    keys, key, pos = [], 0, 0
-    longs = list(lengths)
-    while pos < n:
-        if longs and rng.random() < 0.02:
-            length = longs.pop()
-        else:
-            length = int(rng.integers(1, 70))
-        length = min(length, n - pos)
-        keys += [key] * length
-        pos += length
-        key += 1 + int(rng.random() < 0.1)          # some keys have no elements
-    return np.asarray(keys, np.uint32)
+    keys = np.empty(n, np.int64)
+    key, pos = 0, 0
+    for start, length in sorted(runs) + [(n, 0)]:
+        while pos < start:
+            step = min(int(rng.integers(1, 70)), start - pos)
+            keys[pos:pos + step] = key
+            pos += step
+            key += 1 + int(rng.random() < 0.1)      # some keys have no elements
+        if length:
+            keys[start:start + length] = key
+            pos, key = start + length, key + 1 + int(rng.random() < 0.1)
+    for start, length in runs:                       # each placed run is one whole key's run
+        assert np.all(keys[start:start + length] == keys[start])
+        assert start == 0 or keys[start - 1] != keys[start]
+        assert start + length == n or keys[start + length] != keys[start]
+    return keys.astype(np.uint32)
 
 
-@pytest.mark.parametrize("n,lengths", [(1, []), (CHUNK, [CHUNK]), (3 * CHUNK + 5, [CHUNK + 3]),
-                                       (CHUNK * CHUNK + 300, [2 * CHUNK * CHUNK - 1000, 700, 129]),
-                                       (CHUNK ** 3 + 5000, [CHUNK * CHUNK * 3 + 17, 9000, CHUNK * CHUNK])])
-def test_segment_gather(ctx, n, lengths):
-    """One invocation per key over its own run gives SegmentSum's sums bit for bit: runs inside
-    a chunk, across chunks, and across chunks of chunks (two and three levels of the up-sweep);
-    keys without elements get zero (``out`` is written, not added to); within float32 rounding
-    of the float64 per-key sum."""
-    assert SegmentGather(ctx).chunk == CHUNK                      # the kernel's CHUNK is segment.wgsl's
-    keys = _long_runs(n, n, lengths)
-    rng = np.random.default_rng(n + 1)
+def _gather_against_segment_sum(ctx, keys, seed):
+    """SegmentGather and SegmentSum over the same elements; returns (gather, segment sum, spans,
+    index, vals, plain float64 per-key sums)."""
+    n = len(keys)
+    rng = np.random.default_rng(seed)
     index = rng.permutation(n).astype(np.uint32)
     vals = rng.normal(size=(n, 2, 4)).astype(np.float32)
     num_keys = int(keys.max()) + 3
     spans = key_spans(keys, num_keys)
-    assert segment_levels(n, CHUNK) == twin._levels(n)
     bufs = {name: ctx.upload(a, name) for a, name in ((keys, "keys"), (index, "index"), (vals, "vals"),
                                                       (spans, "spans"))}
     ss = SegmentSum(ctx, Scratch(ctx), "test_gather_sum")
@@ -163,19 +159,60 @@ def test_segment_gather(ctx, n, lengths):
     got_out = ctx.upload(np.full((num_keys, 2, 4), np.nan, np.float32), "got")   # overwritten, not added to
     _run(ctx, lambda enc: SegmentGather(ctx)(enc, bufs["spans"], bufs["index"], bufs["vals"], got_out, num_keys, n))
     got = ctx.read(got_out, np.float32, 8 * num_keys).reshape(num_keys, 2, 4)
-    np.testing.assert_array_equal(got, ctx.read(want_out, np.float32, 8 * num_keys).reshape(num_keys, 2, 4))
-    np.testing.assert_array_equal(got, twin.segment_gather(spans, index, vals, n, np.float32))
+    want = ctx.read(want_out, np.float32, 8 * num_keys).reshape(num_keys, 2, 4)
     plain = np.zeros((num_keys, 2, 4))
     np.add.at(plain, keys, vals[index].astype(np.float64))
+    return got, want, spans, index, vals, plain
+
+
+C2 = CHUNK * CHUNK
+
+
+@pytest.mark.parametrize("n,runs", [
+    (1, []),
+    (CHUNK, [(0, CHUNK)]),                                         # the whole array, one level
+    (3 * CHUNK + 5, [(11, CHUNK + 3)]),                            # across a chunk boundary
+    (C2 + 300, [(30, 700), (C2, 129), (C2 + 140, 160)]),           # at a chunk of chunks; at the end
+    (3 * C2 + 100, [(0, 3 * C2 + 100)]),                           # the whole array: 4 top-level elements
+    (2 * C2 + 777, [(0, 5000), (5000, 2 * C2 + 777 - 5000)]),      # from the start; to the end
+    (CHUNK ** 3 + 5000, [(29, 3 * C2 + 17), (10 * C2, 9000), (30 * C2 + 63, C2 + 1)]),   # three levels
+])
+def test_segment_gather(ctx, n, runs):
+    """One invocation per key over its own run gives SegmentSum's sums bit for bit: runs inside
+    a chunk, across chunks, from and to chunks of chunks, the whole array, over two and three
+    levels of the up-sweep; keys without elements get zero (``out`` is written, not added to);
+    within float32 rounding of the float64 per-key sum; the float32 twin the same bits."""
+    assert SegmentGather(ctx).chunk == CHUNK                      # the kernel's CHUNK is segment.wgsl's
+    keys = _placed_runs(n, n, runs)
+    assert segment_levels(n, CHUNK) == twin._levels(n)
+    got, want, spans, index, vals, plain = _gather_against_segment_sum(ctx, keys, n + 1)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(got, twin.segment_gather(spans, index, vals, n, np.float32))
     np.testing.assert_allclose(twin.segment_gather(spans, index, vals, n), plain, rtol=0, atol=1e-9)
-    longest = int(np.bincount(keys).max())
-    _close(got, plain, vals, longest)
-    if n > CHUNK * CHUNK:                                         # a plain in-order sum would differ here
-        sequential = np.zeros((num_keys, 2, 4), np.float32)
-        for k in range(num_keys):
+    _close(got, plain, vals, int(np.bincount(keys).max()))
+    if n > C2:                                                    # a plain in-order sum would differ here
+        sequential = np.zeros_like(got)
+        for k in range(len(spans)):
             for e in range(*spans[k]):
                 sequential[k] = sequential[k] + vals[index[e]]
         assert not np.array_equal(got, sequential)
+
+
+def test_segment_gather_longest_runs(ctx):
+    """Eight neighbouring keys of nearly MAX_RUN elements each (the loop budget's worst case: the
+    lanes of one SIMD vector loop in step), three levels up: SegmentSum's bits, and fits()."""
+    top_n = CHUNK ** 3 + 40_000
+    runs, start = [], 37
+    for i in range(8):
+        length = SegmentGather.MAX_RUN - 7 * i
+        runs.append((start, length))
+        start += length
+    keys = _placed_runs(5, top_n, runs)
+    assert segment_levels(top_n, CHUNK) == 3
+    assert SegmentGather(ctx).fits(top_n, int(np.bincount(keys).max()))
+    got, want, _, _, vals, plain = _gather_against_segment_sum(ctx, keys, 6)
+    np.testing.assert_array_equal(got, want)
+    _close(got, plain, vals, SegmentGather.MAX_RUN)
 
 
 def test_segment_gather_in_ranges(ctx, monkeypatch):
@@ -183,7 +220,7 @@ def test_segment_gather_in_ranges(ctx, monkeypatch):
     spans and sums bound from its first key; the same bits as one range."""
     import tsplus_wgpu.gpu.chunks as chunks
     n = 20000
-    keys = _long_runs(3, n, [300])
+    keys = _placed_runs(3, n, [(1000, 300)])
     num_keys = int(keys.max()) + 1
     rng = np.random.default_rng(4)
     index = rng.permutation(n).astype(np.uint32)

@@ -132,7 +132,10 @@ class SegmentGather(Stage):
     binding (:meth:`fits`); else take :class:`SegmentSum`."""
 
     stage = "segment_gather"
-    #: the longest run one invocation sums (lavapipe ends an invocation after 65535 loop iterations)
+    #: the longest run one invocation sums. llvmpipe ends a shader call after 65535 loop
+    #: iterations, counted per SIMD vector (8 invocations with AVX2): the level loops run in
+    #: step across the lanes, so 8 neighbouring keys of this many elements take up to about
+    #: 37,000 (simulated; top level 3, the most one 128 MiB binding of values allows)
     MAX_RUN = 16384
 
     def __init__(self, ctx, constants=None):

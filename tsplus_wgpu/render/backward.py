@@ -26,7 +26,8 @@ Every float sum has a fixed order, so the gradients are bit-identical from run t
 one adapter, and nothing is lost on shared vertices. No invocation loops more than a
 bounded number of times whatever the scene (lavapipe ends an invocation's loops after
 65535 iterations in total): the segmented sums read at most ``CHUNK`` elements each, on
-as many levels as needed.
+as many levels as needed, and the per-vertex gather at most ``SegmentGather.MAX_RUN``
+corners (a vertex with more takes the segmented sum).
 """
 
 from __future__ import annotations

@@ -152,6 +152,7 @@ def training_buffers(num_vertices, num_triangles, sh_degree, width, height, pair
     out += [(T, name, b) for name, b in depth]
     if max_binding is not None and 32 * 3 * m > int(max_binding):
         # the corner gradients past one binding: the segmented sum in pages, not the per-vertex gather
+        # (which also gives way to it for a vertex of over SegmentGather.MAX_RUN corners: not counted)
         out += [(T, name, b) for name, b in _segment_scratch("corner_sum", 3 * m, 2, c)]
     out += [(X, name, _buf(b)) for name, b in (
         ("image", 12 * sub), ("final_t", 4 * sub), ("n_contrib", 8 * sub), ("tile_counts", 4 * tiles),
