@@ -43,7 +43,7 @@ from ..gpu.recorder import Recorder
 from ..kernels.backward import NSTAT, BackwardPrepare, ProjectBackward, VertexBackward, backward_stage
 from ..kernels.reduce import SegmentGather, SegmentSum
 from ..kernels.sort import RadixSort
-from .device_model import corner_spans
+from .device_model import corner_order, corner_spans
 from ..types import Grads, TriangleModel, check_cotangents
 
 
@@ -98,16 +98,17 @@ class BackwardPass:
         vertex's run of them ``(spans buffer, longest run)`` or None.
 
         It depends only on the index buffer, so for a host :class:`TriangleModel` it is
-        kept for the next call with the same topology, keyed on the index array's content
-        (a digest, so a changed topology is never served a stale order). A model already
-        on the device has no host copy to key on: sorted every call, unless it carries its
-        ``corner_order`` (:class:`~tsplus_wgpu.DeviceModel`)."""
-        key = None
+        sorted on the host (:func:`~.device_model.corner_order`, as the trainer does) and kept
+        for the next call with the same topology, keyed on the index array's content (a
+        digest, so a changed topology is never served a stale order). A model already on the
+        device carries its ``corner_order`` (:class:`~tsplus_wgpu.DeviceModel`), or is sorted on
+        the device every call."""
         if isinstance(model, TriangleModel):
             idx = np.ascontiguousarray(model.triangles, dtype=np.uint32)
             key = (int(n), int(m), hashlib.blake2b(idx.tobytes(), digest_size=20).digest())
-            if self._corner_cache is not None and self._corner_cache[0] == key:
-                return self._corner_cache[1:]
+            if self._corner_cache is None or self._corner_cache[0] != key:
+                self._corner_cache = (key, *corner_order(self.ctx, idx), corner_spans(self.ctx, idx, n))
+            return self._corner_cache[1:]
         known = getattr(model, "corner_order", None)   # a DeviceModel whose owner knows the order
         if known is not None:
             return known[0], known[1], getattr(model, "corner_spans", None)
@@ -117,15 +118,7 @@ class BackwardPass:
         enc.copy_buffer_to_buffer(triangles, 0, keys, 0, 12 * m)
         bits = max(1, int(n - 1).bit_length())
         skeys, svals = self.corner_sort.record(enc, keys, vals, 3 * m, bits, profiler)
-        if key is None:
-            return skeys, svals, None
-        # owned copies (the sort may leave its result in scratch buffers shared by later calls)
-        ck, cv = c.buffer(12 * m, "corner_keys_sorted"), c.buffer(12 * m, "corner_ids_sorted")
-        enc.copy_buffer_to_buffer(skeys, 0, ck, 0, 12 * m)
-        enc.copy_buffer_to_buffer(svals, 0, cv, 0, 12 * m)
-        spans = corner_spans(c, idx, n)
-        self._corner_cache = (key, ck, cv, spans)
-        return ck, cv, spans
+        return skeys, svals, None
 
     def run(self, result, v_image, v_transmittance=None, profile=False, read=True, out=None):
         """The backward pass of ``result``.
