@@ -238,7 +238,9 @@ def _start(args, cfg, scene, out, ckpt, t0, ctx, plan, loaded=None):
                    if info.num_bounded else "")
         print(f"initial mesh: {info.num_unique:,} points{bounded}; Delaunay faces: {carve}, {info.num_long_faces:,} "
               f"longer than {cfg.init_max_edge:g} spacings dropped, {info.num_path_faces:,} on the cameras' path "
-              + ("dropped" if cfg.clear_path else "kept (--clear-path off)"))
+              + ("dropped" if cfg.clear_path else "kept (--clear-path off)")
+              + (f"; {info.num_view_faces:,} faces of the training views' own triangulations added (--view-faces on)"
+                 if cfg.view_faces else ""))
     if cfg.topology:
         print(f"vertex cap: {trainer.topology.cap.vertices:,} ({trainer.topology.cap.why})")
     if normal_maps is not None:

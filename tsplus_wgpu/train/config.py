@@ -211,6 +211,12 @@ class TrainConfig:
         3.0, "drop initial Delaunay faces whose longest edge exceeds this many local point spacings (distance to "
              "the 8th nearest point): the faces that span free space and train into shards (0: keep all)",
         flag="--init-max-edge", check=real(0.0), type=float)
+    view_faces: bool = option(
+        False, "add to the initial Delaunay faces those of each training view's 2-D Delaunay triangulation of the points "
+               "it observed (the points next to each other in that photo; needs the points' tracks). Off by default: "
+               "+0.18 dB on lund's forward walk, nothing or a loss on the other shared scenes "
+               "(tsplus_wgpu/train/init.py; docs/measurements.md)", flag="--view-faces", check=boolean(), absent=False,
+        choices=["on", "off"])
     position_lr_depth: bool = option(
         True, "scale each vertex's position learning rate by min(1, its distance to the nearest training camera in "
               "camera radii), read before every step: Adam moves a vertex by about the rate whatever its depth, so "
@@ -324,7 +330,8 @@ class TrainConfig:
     RESUME_KEYS = ("iterations", "quick", "indoor", "seed", "sh_degree", "background", "near", "opacity_reg",
                    "topology", "max_vertices", "vertex_budget", "densify_stop_rel", "densify_stop_windows",
                    "quick_topology_epochs", "quick_early_prune", "quick_opacity_lr_scale", "shell", "init_max_edge", "carve", "hard_prune",
-                   "weight_prune", "sigma_decay", "sigma_final", "opacity", "normals", "position_lr_depth")
+                   "weight_prune", "sigma_decay", "sigma_final", "opacity", "normals", "position_lr_depth",
+                   "view_faces")
 
 
 def _label(f, source):

@@ -1,7 +1,9 @@
 """The model a run starts from (:class:`~.trainer.Trainer` without ``model``).
 
 1. The scene's points (at most :func:`bounded_points` of them) meshed
-   (:func:`~.init.init_from_points`): every face of their 3D Delaunay tetrahedralisation, less
+   (:func:`~.init.init_from_points`): every face of their 3D Delaunay tetrahedralisation and
+   (``config.view_faces``) of each training view's 2-D Delaunay triangulation of the points it
+   observed (:func:`~.init.view_faces`; needs the tracks), less
    the faces that a training camera's line of sight to a point it observed crosses
    (``config.carve``, :mod:`.carve`; needs the scene's SfM tracks, ``Scene.point_tracks``) and
    the faces longer than ``config.init_max_edge`` local spacings, and the faces on the path the
@@ -20,7 +22,7 @@ import numpy as np
 from ..data.tracks import rays, subset
 from ..types import TriangleModel
 from .floaters import near_path
-from .init import init_from_points
+from .init import init_from_points, view_faces
 from .shell import background_shell, with_shell
 from .strategy.cap import initial_points_bound
 
@@ -41,6 +43,19 @@ def training_rays(scene, tracks=None, num_points=None):
     ok = train[views]
     centres = np.stack([c.center for c in scene.cameras])
     return ray_pt[ok], centres[views[ok]]
+
+
+def training_observations(scene, tracks=None, num_points=None):
+    """``[(camera, rows)]``: each training view's camera and the rows of the points it observed
+    (:func:`training_rays`' observations grouped by view; empty without tracks)."""
+    tracks = scene.point_tracks if tracks is None else tracks
+    if tracks is None or scene.points is None:
+        return []
+    num = len(scene.points) if num_points is None else int(num_points)
+    if len(tracks[0]) != num + 1:
+        raise ValueError(f"scene: point_tracks has {len(tracks[0]) - 1} tracks for {num} points")
+    ray_pt, views = rays(tracks)
+    return [(scene.cameras[v], ray_pt[views == v]) for v in sorted(set(int(i) for i in scene.train_indices))]
 
 
 def bounded_points(scene, config):
@@ -70,8 +85,9 @@ def initial_model(scene, config):
         raise ValueError("scene: it has no initial points (need at least 3 to triangulate)")
     pts, cols, tracks, dropped = bounded_points(scene, config)
     vis = training_rays(scene, tracks, len(pts)) if config.carve else None
-    model, info = init_from_points(pts, cols, sh_degree=config.sh_degree,
-                                   max_edge_ratio=config.init_max_edge or None, visibility=vis, return_info=True)
+    extra = view_faces(pts, training_observations(scene, tracks, len(pts))) if config.view_faces else None
+    model, info = init_from_points(pts, cols, sh_degree=config.sh_degree, max_edge_ratio=config.init_max_edge or None,
+                                   visibility=vis, return_info=True, extra_faces=extra)
     info.num_bounded = dropped
     on_path = near_path(model.positions, model.triangles, [scene.cameras[i].center for i in scene.train_indices])
     info.num_path_faces = int(on_path.sum())
