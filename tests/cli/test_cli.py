@@ -34,9 +34,26 @@ def test_every_command_has_help(cmd, capsys):
     assert exit_.value.code == 0
     out = capsys.readouterr().out
     assert out.startswith("usage: tsplus " + cmd) and len(out.splitlines()) > 5
+    assert "option_strings" not in out      # a help text's unescaped % formats the argparse record
     with pytest.raises(SystemExit):
         main(["--help"])
     assert cmd in capsys.readouterr().out
+
+
+def test_train_help_shows_every_option_as_written(capsys):
+    """Every training option's help text reaches ``tsplus train --help`` as written: argparse
+    formats help with ``%``, so an unescaped ``7 % shorter`` once printed the option's whole
+    argparse record in its place."""
+    from tsplus_wgpu.train.config import cli_options
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    shown = "".join(capsys.readouterr().out.split())
+    assert "option_strings" not in shown
+    with_percent = 0
+    for _name, flag, text, _kw in cli_options():
+        assert "".join(text.split()) in shown, flag
+        with_percent += "%" in text
+    assert with_percent >= 1        # the case this guards is present
 
 
 def test_render_main_job(tmp_path, capsys):

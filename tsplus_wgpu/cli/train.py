@@ -56,7 +56,7 @@ def add_parser(sub):
                    help="paper: method.md's schedules as they are (30k-iteration constants); quick: every schedule "
                         "scaled to --iterations (default paper; on a CPU adapter quick, with --resume the run's own)")
     for name, flag, text, kwargs in cli_options():       # one option per TrainConfig field with a flag
-        p.add_argument(flag, dest=name, default=None, help=text, **kwargs)
+        p.add_argument(flag, dest=name, default=None, help=text.replace("%", "%%"), **kwargs)
     p.add_argument("--downscale", type=int, default=None,
                    help=f"shrink the images by this factor (default: on a GPU 1, or the smallest that leaves a long "
                         f"side of at most {GPU_MAX_SIDE:,} pixels, the paper's; on a CPU adapter the smallest that "
