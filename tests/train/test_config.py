@@ -31,7 +31,7 @@ def test_every_flag_comes_from_a_field_and_shows_its_default():
     opts = cli_options()
     assert {o[0] for o in opts} == {"iterations", "indoor", "seed", "log_every", "checkpoint_every", "topology",
                                     "max_vertices", "vertex_budget", "densify_stop_rel", "quick_early_prune", "shell", "init_max_edge", "carve", "clear_path", "sh_degree", "final_prune",
-                                    "mesh_colors", "fill_holes", "fill_hidden", "remove_shards", "remove_far", "shard_check", "color_detail",
+                                    "mesh_colors", "fill_holes", "fill_hidden", "remove_shards", "remove_far", "remove_sky", "shard_check", "color_detail",
                                     "detail_budget", "normals", "position_lr_depth", "view_faces"}
     for name, flag, text, _ in opts:
         f = names[name]

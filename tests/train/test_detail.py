@@ -204,19 +204,19 @@ def test_trainer_export_keeps_the_surface_and_the_chosen_level(renderer):
         meshes[on] = t.final_mesh(bar)
         infos[on] = t.final_info.get("detail")
         # the progress bar's plan, corrected as the stages ran, is the views they drew: the fill, the
-        # fit, the shards' pass and the far field's (and the fill and the fit again when some were
+        # fit, the shards' pass, the far field's and the sky's (and the fill and the fit again when some were
         # found, the shard check's pass when some shards were found by size and error, and the fill
         # and fit once more when it put some back), every detail level's validation, the kept
         # level's fit, the winding
         v, info = len(t.train_views), t.final_info
         found = info["shards"] + info["shards_kept"]
-        drawn = (2 * v + 2 * v + (2 * v if found else 0) + (v if info["shards_checked"] else 0)
+        drawn = (2 * v + 3 * v + (2 * v if found else 0) + (v if info["shards_checked"] else 0)
                  + (2 * v if info["shards_kept"] else 0) + v)
         if on:
             drawn += v * (len(infos[on]["levels"]) + (infos[on]["chosen"] > 0))
         assert bar.n == bar.total == drawn and bar.resets == 1, (bar.n, bar.total, drawn)
         assert {"export: backdrop fill", "export: colour fit", "export: shards", "export: far field",
-                "export: winding"} | ({"export: shard check"} if info["shards_checked"] else set()) <= bar.stages
+                "export: sky", "export: winding"} | ({"export: shard check"} if info["shards_checked"] else set()) <= bar.stages
         assert ("export: colour detail" in bar.stages) == on
     assert infos[False] is None
     info = infos[True]

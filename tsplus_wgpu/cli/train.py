@@ -301,7 +301,8 @@ def _finish(trainer, scene, out, ckpt, psnr0, progress=True):
     behind = " and what the shell lost behind the surfaces" if trainer.config.fill_hidden else ""
     print(f"exported mesh: {len(tri):,} triangles, {fin['filled_triangles']:,} of them a backdrop filling holes of "
           f"the training views{behind}; {fin['shards']:,} shards removed ({fin.get('floaters', 0):,} of them on the "
-          f"cameras' path, {fin.get('far', 0):,} in front of what the photos show far away; {fin.get('shards_kept', 0):,} "
+          f"cameras' path, {fin.get('far', 0):,} in front of what the photos show far away, {fin.get('sky', 0):,} in "
+          f"front of their sky; {fin.get('shards_kept', 0):,} "
           f"kept, the training views drawn worse without them); vertex colours {colours}")
     if fin.get("detail") is not None:
         print(detail_line(fin["detail"]))
@@ -331,7 +332,8 @@ def _finish(trainer, scene, out, ckpt, psnr0, progress=True):
                    model_vertices=trainer.n, model_triangles=trainer.m, train_seconds=trainer.elapsed,
                    iterations_per_s=trainer.iteration / max(trainer.elapsed, 1e-9),
                    shards_removed=int(fin.get("shards", 0)), path_floaters_removed=int(fin.get("floaters", 0)),
-                   far_occluders_removed=int(fin.get("far", 0)), shards_kept=int(fin.get("shards_kept", 0)),
+                   far_occluders_removed=int(fin.get("far", 0)), sky_triangles_removed=int(fin.get("sky", 0)),
+                   shards_kept=int(fin.get("shards_kept", 0)),
                    color_detail=fin.get("detail"), facing=fin.get("facing"), upright=_upright(scene),
                    scene_warnings=[str(w) for w in getattr(scene, "warnings", None) or ()])
     write_json(out / "metrics.json", metrics)

@@ -267,6 +267,11 @@ class TrainConfig:
               "at the mesh's depth there is far, and a triangle that draws mostly such pixels goes "
               "(tsplus_wgpu/train/far_field.py; docs/measurements.md)",
         flag="--remove-far", check=boolean(), choices=["on", "off"])
+    remove_sky: bool = option(
+        True, "with --remove-shards on: also remove the surface triangles whose pixels in the training photos are "
+              "mostly sky (smooth, blue, above the horizon, reaching the frame), so the backdrop draws the "
+              "sky far away (tsplus_wgpu/train/sky.py; docs/measurements.md)",
+        flag="--remove-sky", check=boolean(), choices=["on", "off"])
     color_detail: bool = option(
         True, "at the end, subdivide the exported mesh where its triangles are large on screen (over 16, 8, 4 or 2 "
               "pixels, within --detail-budget) so the fitted vertex colours carry the photos' texture; the level is "

@@ -32,6 +32,7 @@ from .far_field import far_occluders
 from .floaters import path_floaters
 from .detail import LEVEL_PX, VALIDATION_SUPERSAMPLE, angular_size, colour_detail, with_midpoints
 from .shell import SHELL, SURFACE, background_shell, beyond_views, shell_radius
+from .sky import sky_triangles
 from .strategy.cap import vertex_cap
 
 #: samples per pixel side of the colour fit (reduced for large images, mesh_fit.MAX_SAMPLES)
@@ -92,7 +93,8 @@ def _planned(t):
     detail = v * (len(LEVEL_PX) + 2) if cfg.color_detail and fit else 0
     total = (v if cfg.final_prune else 0) + export + detail + v     # the cleanup, an export, the detail, the winding
     if cfg.remove_shards:
-        total += v + export + (v if cfg.remove_far else 0)          # the shards' pass (and the far field's), the export again
+        # the shards' pass (the far field's, the sky's), the export again
+        total += v + export + (v if cfg.remove_far else 0) + (v if cfg.remove_sky else 0)
         total += v if cfg.shard_check else 0                       # the check of what was removed
     return total, export, detail
 
@@ -107,13 +109,14 @@ def final_mesh(trainer, progress=None):
         total, export, detail = _planned(t)
         bar.plan(total)
         keep = cleanup_mask(t)
-        t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0, far=0, shards_kept=0,
+        t.final_info = dict(filled_triangles=0, color_fit=None, shards=0, floaters=0, far=0, sky=0, shards_kept=0,
                             shards_checked=0)
         mesh = _exported(t, keep)
         if cfg.remove_shards and len(mesh[2]):
             mesh = _without_shards(t, keep, mesh, export)
         elif cfg.remove_shards:
-            bar.replan(-(len(t.train_views) * (1 + int(cfg.remove_far) + int(cfg.shard_check)) + export))
+            bar.replan(-(len(t.train_views) * (1 + int(cfg.remove_far) + int(cfg.remove_sky) + int(cfg.shard_check))
+                         + export))
         pos_frame, pos_world, tris, colors, _ = mesh
         if cfg.color_detail and cfg.mesh_colors == "fit":
             start = bar.done
@@ -141,7 +144,9 @@ def _without_shards(t, keep, mesh, export):
     shards = sized | floaters
     far = ~shards & find_far_occluders(t, mesh[0], mesh[2], mesh[4]) if cfg.remove_far else np.zeros(t.m, bool)
     shards |= far
-    out, back, checked = mesh, np.zeros(t.m, bool), sized & ~floaters & ~far
+    sky = ~shards & find_sky(t, mesh[0], mesh[2], mesh[4]) if cfg.remove_sky else np.zeros(t.m, bool)
+    shards |= sky
+    out, back, checked = mesh, np.zeros(t.m, bool), sized & ~floaters & ~far & ~sky
     if shards.any():
         out = _exported(t, keep & ~shards)
     else:
@@ -155,7 +160,8 @@ def _without_shards(t, keep, mesh, export):
     elif cfg.shard_check:
         bar.replan(-len(t.train_views))                            # nothing to check
     t.final_info.update(shards=int(shards.sum()), floaters=int((floaters & shards).sum()),
-                        far=int((far & shards).sum()), shards_kept=int(back.sum()), shards_checked=int(checked.sum()))
+                        far=int((far & shards).sum()), sky=int((sky & shards).sum()), shards_kept=int(back.sum()),
+                        shards_checked=int(checked.sum()))
     return out
 
 
@@ -339,6 +345,23 @@ def find_far_occluders(trainer, pos_frame, tris, source):
                           [t.scene.images[v] for v in views], t.config.near, tick=_progress(t).tick)
     out = np.zeros(t.m, bool)
     out[source[front & _surface(t, source)]] = True
+    return out
+
+
+def find_sky(trainer, pos_frame, tris, source):
+    """``[M]`` bool over the trainer's triangles: the surface triangles of the exported mesh
+    ``(pos_frame, tris)`` (``source``: the trainer's triangle each came from, -1 for the fill) whose
+    pixels in the training photos are mostly sky (:mod:`.sky`)."""
+    from ..data.upright import scene_upright
+    t = trainer
+    _progress(t).stage("sky")
+    views = list(t.train_views)
+    cams = [t.scene.cameras[v] for v in views]
+    upright = scene_upright(t.scene)       # the photos' EXIF orientation where they have one
+    found = sky_triangles(t.mesh_renderer, pos_frame, tris, cams, [t.scene.images[v] for v in views], t.config.near,
+                          up=None if upright is None else upright.up, tick=_progress(t).tick)
+    out = np.zeros(t.m, bool)
+    out[source[found & _surface(t, source)]] = True
     return out
 
 
