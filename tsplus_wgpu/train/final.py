@@ -94,7 +94,7 @@ def _planned(t):
     total = (v if cfg.final_prune else 0) + export + detail + v     # the cleanup, an export, the detail, the winding
     if cfg.remove_shards:
         # the shards' pass (the far field's, the sky's), the export again
-        total += v + export + (v if cfg.remove_far else 0) + (v if cfg.remove_sky else 0)
+        total += v + export + (v if cfg.remove_far else 0) + (v if _sky_on(cfg) else 0)
         total += v if cfg.shard_check else 0                       # the check of what was removed
     return total, export, detail
 
@@ -115,7 +115,7 @@ def final_mesh(trainer, progress=None):
         if cfg.remove_shards and len(mesh[2]):
             mesh = _without_shards(t, keep, mesh, export)
         elif cfg.remove_shards:
-            bar.replan(-(len(t.train_views) * (1 + int(cfg.remove_far) + int(cfg.remove_sky) + int(cfg.shard_check))
+            bar.replan(-(len(t.train_views) * (1 + int(cfg.remove_far) + int(_sky_on(cfg)) + int(cfg.shard_check))
                          + export))
         pos_frame, pos_world, tris, colors, _ = mesh
         if cfg.color_detail and cfg.mesh_colors == "fit":
@@ -144,9 +144,12 @@ def _without_shards(t, keep, mesh, export):
     shards = sized | floaters
     far = ~shards & find_far_occluders(t, mesh[0], mesh[2], mesh[4]) if cfg.remove_far else np.zeros(t.m, bool)
     shards |= far
-    sky = ~shards & find_sky(t, mesh[0], mesh[2], mesh[4]) if cfg.remove_sky else np.zeros(t.m, bool)
+    in_sky = find_sky(t, mesh[0], mesh[2], mesh[4]) if _sky_on(cfg) else np.zeros(t.m, bool)
+    sky = ~shards & in_sky
     shards |= sky
-    out, back, checked = mesh, np.zeros(t.m, bool), sized & ~floaters & ~far & ~sky
+    # the sky's triangles are never checked, also those the size rule named: the training views
+    # were fitted with them, so they draw worse without them (docs/measurements.md)
+    out, back, checked = mesh, np.zeros(t.m, bool), sized & ~floaters & ~far & ~in_sky
     if shards.any():
         out = _exported(t, keep & ~shards)
     else:
@@ -346,6 +349,12 @@ def find_far_occluders(trainer, pos_frame, tris, source):
     out = np.zeros(t.m, bool)
     out[source[front & _surface(t, source)]] = True
     return out
+
+
+def _sky_on(cfg):
+    """Whether the end of training looks for triangles in front of the sky: ``remove_sky``, and
+    not in a scene declared indoor (``--indoor``), which has none."""
+    return bool(cfg.remove_sky) and not bool(cfg.indoor)
 
 
 def find_sky(trainer, pos_frame, tris, source):
