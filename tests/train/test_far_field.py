@@ -146,8 +146,8 @@ def test_unrelated_neighbours_say_nothing_is_far(mesh_renderer):
 
 def test_the_end_of_training_removes_what_the_test_names(renderer, monkeypatch):
     """The wiring in final_mesh: with --remove-far on, the surface triangles far_occluders names
-    leave the exported mesh (counted apart from the shards); the shell's never; off, it is not
-    asked."""
+    leave the exported mesh (counted apart from the shards), also those the size rule names, and
+    the shard check puts none back (nor checks them); the shell's never; off, it is not asked."""
     import tsplus_wgpu.train.final as final
     from tsplus_wgpu.data.procedural import load_procedural
     from tsplus_wgpu.train.shell import SURFACE
@@ -160,9 +160,9 @@ def test_the_end_of_training_removes_what_the_test_names(renderer, monkeypatch):
         return np.ones(len(tri), bool)
 
     monkeypatch.setattr(final, "far_occluders", every_triangle)
-    # the shard check off: it would put back the (right) triangles named here (tests/train/test_shard_check.py)
+    # the shard check on: the far field's triangles have evidence of their own and are never checked
     cfg = dict(iterations=2, quick=True, topology=False, log_every=0, mesh_colors="dc", color_detail=False,
-               shard_check=False)
+               shard_check=True, remove_sky=False)
     out = {}
     for on in (False, True):
         t = Trainer(tiny, TrainConfig(**cfg, remove_far=on), renderer=renderer)
@@ -173,6 +173,8 @@ def test_the_end_of_training_removes_what_the_test_names(renderer, monkeypatch):
     (n_off, info_off, surface), (n_on, info_on, _) = out[False], out[True]
     assert info_off["far"] == 0 and 0 < info_on["far"] <= surface
     assert info_on["shards"] == surface and n_on < n_off     # every surface triangle gone, as a shard or as far
+    assert info_on["shards_checked"] == 0 and info_on["shards_kept"] == 0
+    assert info_off["shards_checked"] > 0                    # (the size rule names some of them)
 
 
 def test_a_single_view_finds_nothing_and_still_counts_its_view(mesh_renderer):

@@ -142,14 +142,15 @@ def _without_shards(t, keep, mesh, export):
     drawn = [] if cfg.shard_check else None
     sized = find_shards(t, *mesh, record=drawn)
     shards = sized | floaters
-    far = ~shards & find_far_occluders(t, mesh[0], mesh[2], mesh[4]) if cfg.remove_far else np.zeros(t.m, bool)
+    in_far = find_far_occluders(t, mesh[0], mesh[2], mesh[4]) if cfg.remove_far else np.zeros(t.m, bool)
+    far = ~shards & in_far
     shards |= far
     in_sky = find_sky(t, mesh[0], mesh[2], mesh[4]) if _sky_on(cfg) else np.zeros(t.m, bool)
     sky = ~shards & in_sky
     shards |= sky
-    # the sky's triangles are never checked, also those the size rule named: the training views
-    # were fitted with them, so they draw worse without them (docs/measurements.md)
-    out, back, checked = mesh, np.zeros(t.m, bool), sized & ~floaters & ~far & ~in_sky
+    # the far field's and the sky's triangles are never checked, also those the size rule named:
+    # the training views were fitted with them, so they draw worse without them (docs/measurements.md)
+    out, back, checked = mesh, np.zeros(t.m, bool), sized & ~floaters & ~in_far & ~in_sky
     if shards.any():
         out = _exported(t, keep & ~shards)
     else:
