@@ -230,3 +230,55 @@ def test_loader_maps_triangulated_tracks_to_scene_views(small, tmp_path):
     few = load_scene(tmp_path / "llff", points="triangulate", cache_dir=tmp_path / "cache", max_points=50)
     T.check(few.point_tracks, 50, len(few.cameras))
     assert load_scene(tmp_path / "llff", points="frusta").point_tracks is None
+
+
+def test_triangulation_gives_the_same_points_in_any_world_units(small, tmp_path):
+    """The same photos with the world scaled by 1000 and shifted far from the origin give the
+    same points (mapped), colours and tracks: pycolmap works in the cameras' own frame
+    (data/unit_frame.py). In the world's own numbers the small scene gave 743 points against 744."""
+    from tsplus_wgpu.data.sfm import triangulate_known_poses
+    from tsplus_wgpu.types import Camera
+    s, shift = 1000.0, np.array([3.1e4, -2.7e4, 5.5e4])
+
+    def moved(c):            # the camera of the world x -> s x + shift
+        w2c = np.asarray(c.world_to_camera, np.float64).copy()
+        w2c[:3, 3] = s * w2c[:3, 3] - w2c[:3, :3] @ shift
+        return Camera(c.width, c.height, c.fx, c.fy, c.cx, c.cy, w2c)
+
+    a = triangulate_known_poses(small.cameras, small.images, small.image_names, tmp_path / "a", progress=False)
+    b = triangulate_known_poses([moved(c) for c in small.cameras], small.images, small.image_names, tmp_path / "b",
+                                progress=False)
+    assert len(a[0]) == len(b[0]) > 100
+    extent = np.ptp(a[0], axis=0).max()
+    assert np.abs((b[0] - shift) / s - a[0]).max() < 1e-9 * extent
+    np.testing.assert_array_equal(a[1], b[1])
+    same(a[2]["tracks"], b[2]["tracks"])
+    # the reconstruction handed back is in the world's units too (its points are the returned ones)
+    xyz = np.array([p.xyz for p in b[2]["reconstruction"].points3D.values()])
+    assert np.abs(np.sort(xyz, axis=0) - np.sort(b[0], axis=0)).max() < 1e-9 * s * extent
+
+
+def test_the_cameras_frame_maps_poses_back_exactly():
+    """unit_frame: a camera seen in the frame and its pose mapped back is the camera; the frame
+    of a scaled and shifted set of cameras is the scaled and shifted frame; cameras at one point
+    get the identity."""
+    from tsplus_wgpu.data.unit_frame import camera_frame, in_frame, pose_to_world
+    from tsplus_wgpu.types import Camera
+    rng = np.random.default_rng(3)
+    cams = []
+    for _ in range(5):
+        q, _r = np.linalg.qr(rng.normal(size=(3, 3)))
+        w2c = np.eye(4)
+        w2c[:3, :3], w2c[:3, 3] = q * np.sign(np.linalg.det(q)), rng.normal(size=3) * 4
+        cams.append(Camera(64, 48, 50.0, 50.0, 32.0, 24.0, w2c))
+    frame = camera_frame(cams)
+    centres = np.array([c.center for c in cams])
+    assert np.allclose(frame[0], centres.mean(0))
+    assert np.isclose(frame[1], np.median(np.linalg.norm(centres - frame[0], axis=1)))
+    for c in cams:
+        f = in_frame(c, frame)
+        assert np.allclose(f.center, (c.center - frame[0]) / frame[1])
+        assert np.allclose(pose_to_world(f.world_to_camera, frame), np.asarray(c.world_to_camera)[:3], atol=1e-12)
+    one = [Camera(64, 48, 50.0, 50.0, 32.0, 24.0, np.eye(4))] * 3
+    centre, scale = camera_frame(one)
+    assert scale == 1.0 and np.all(centre == 0.0)

@@ -33,6 +33,7 @@ from .posecheck import left_out, pose_errors
 from .poserepair import reposed_photos, with_pose
 from .tracks import check as check_tracks
 from .tracks import of_pycolmap_points as tracks_of_points
+from .unit_frame import camera_frame, in_frame, pose_to_world, reconstruction_to_world
 
 #: the smallest angle (degrees) between two rays of a triangulated point with known poses
 #: (COLMAP's default is 1.5), and two-view tracks are triangulated (COLMAP skips them by default): the
@@ -45,8 +46,9 @@ TRIANGULATION_MIN_ANGLE = 1.0
 #: the recipe's version in every cache key: results of an older recipe are not reused
 #: (v3: pycolmap on one thread, deterministic; v4: matches guided by the known poses added;
 #: v5: guided over 12 nearest cameras instead of 6; v7: photos whose pose disagrees posed again
-#: from their matches, :mod:`.poserepair`; v6 was an experiment's, not committed, so never reused)
-RECIPE = "v7"
+#: from their matches, :mod:`.poserepair`; v6 was an experiment's, not committed, so never reused;
+#: v8: in the cameras' own frame, :mod:`.unit_frame`)
+RECIPE = "v8"
 #: the photo folder's SfM recipe (unchanged by v4, which only adds matches for posed images;
 #: v5: the global mapper first, the EXIF focal length held, :mod:`.photos`; v4 was an
 #: experiment's, reverted, so its cache entries must not be read as this recipe's)
@@ -362,7 +364,12 @@ def _triangulated_points(pycolmap, work, load_one, names, progress, max_image_si
         del img
     if len(safe) < 2:
         raise RuntimeError(f"only {len(safe)} image(s) could be read for triangulation")
-    rec, errors, off, fixed = _triangulate(pycolmap, work, cameras, safe, progress, max_image_size, exhaustive_max)
+    frame = camera_frame(cameras)       # pycolmap works in the cameras' own frame: any world units give one result
+    rec, errors, off, fixed = _triangulate(pycolmap, work, [in_frame(c, frame) for c in cameras], safe, progress,
+                                           max_image_size, exhaustive_max)
+    reconstruction_to_world(pycolmap, rec, frame)
+    for got in fixed.values():
+        got["cam_from_world"] = pose_to_world(got["cam_from_world"], frame)
     frame = dict(zip(safe, frame_of))
     pose_error = np.full(len(names), np.nan)
     for s, (e, _) in errors.items():
