@@ -253,15 +253,20 @@ def test_triangulation_gives_the_same_points_in_any_world_units(small, tmp_path)
     assert np.abs((b[0] - shift) / s - a[0]).max() < 1e-9 * extent
     np.testing.assert_array_equal(a[1], b[1])
     same(a[2]["tracks"], b[2]["tracks"])
-    # the reconstruction handed back is in the world's units too (its points are the returned ones)
-    xyz = np.array([p.xyz for p in b[2]["reconstruction"].points3D.values()])
-    assert np.abs(np.sort(xyz, axis=0) - np.sort(b[0], axis=0)).max() < 1e-9 * s * extent
+    # the reconstruction handed back is in the world's units too: its photos' poses are the
+    # moved cameras' (tests/data/test_real.py reprojects its points with the scene's cameras)
+    rec = b[2]["reconstruction"]
+    poses = {im.name: np.asarray(im.cam_from_world().matrix(), np.float64) for im in rec.images.values()}
+    assert len(poses) == len(small.cameras)
+    for k, c in enumerate(small.cameras):
+        want = np.asarray(moved(c).world_to_camera, np.float64)[:3]
+        assert np.abs(poses[f"{k:05d}.png"] - want).max() < 1e-9 * s * extent
 
 
 def test_the_cameras_frame_maps_poses_back_exactly():
     """unit_frame: a camera seen in the frame and its pose mapped back is the camera; the frame
     of a scaled and shifted set of cameras is the scaled and shifted frame; cameras at one point
-    get the identity."""
+    are centred there, at scale 1."""
     from tsplus_wgpu.data.unit_frame import camera_frame, in_frame, pose_to_world
     from tsplus_wgpu.types import Camera
     rng = np.random.default_rng(3)
@@ -279,6 +284,17 @@ def test_the_cameras_frame_maps_poses_back_exactly():
         f = in_frame(c, frame)
         assert np.allclose(f.center, (c.center - frame[0]) / frame[1])
         assert np.allclose(pose_to_world(f.world_to_camera, frame), np.asarray(c.world_to_camera)[:3], atol=1e-12)
-    one = [Camera(64, 48, 50.0, 50.0, 32.0, 24.0, np.eye(4))] * 3
-    centre, scale = camera_frame(one)
-    assert scale == 1.0 and np.all(centre == 0.0)
+    s, shift = 1000.0, np.array([3.1e4, -2.7e4, 5.5e4])
+    moved = []
+    for c in cams:
+        w2c = np.asarray(c.world_to_camera, np.float64).copy()
+        w2c[:3, 3] = s * w2c[:3, 3] - w2c[:3, :3] @ shift
+        moved.append(Camera(c.width, c.height, c.fx, c.fy, c.cx, c.cy, w2c))
+    centre, scale = camera_frame(moved)
+    assert np.allclose(centre, s * frame[0] + shift, rtol=0, atol=1e-9 * s) and np.isclose(scale, s * frame[1])
+    for c, m in zip(cams, moved):         # the same camera in the frame, whatever the world's units
+        assert np.allclose(in_frame(m, (centre, scale)).world_to_camera, in_frame(c, frame).world_to_camera, atol=1e-9)
+    at = np.eye(4)
+    at[:3, 3] = [-2.0, 5.0, 1.0]          # every camera at (2, -5, -1)
+    centre, scale = camera_frame([Camera(64, 48, 50.0, 50.0, 32.0, 24.0, at)] * 3)
+    assert scale == 1.0 and np.allclose(centre, [2.0, -5.0, -1.0])

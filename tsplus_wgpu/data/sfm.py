@@ -364,12 +364,12 @@ def _triangulated_points(pycolmap, work, load_one, names, progress, max_image_si
         del img
     if len(safe) < 2:
         raise RuntimeError(f"only {len(safe)} image(s) could be read for triangulation")
-    frame = camera_frame(cameras)       # pycolmap works in the cameras' own frame: any world units give one result
-    rec, errors, off, fixed = _triangulate(pycolmap, work, [in_frame(c, frame) for c in cameras], safe, progress,
+    unit = camera_frame(cameras)        # pycolmap works in the cameras' own frame: any world units give one result
+    rec, errors, off, fixed = _triangulate(pycolmap, work, [in_frame(c, unit) for c in cameras], safe, progress,
                                            max_image_size, exhaustive_max)
-    reconstruction_to_world(pycolmap, rec, frame)
-    for got in fixed.values():
-        got["cam_from_world"] = pose_to_world(got["cam_from_world"], frame)
+    reconstruction_to_world(pycolmap, rec, unit)
+    for repose in fixed.values():
+        repose["cam_from_world"] = pose_to_world(repose["cam_from_world"], unit)
     frame = dict(zip(safe, frame_of))
     pose_error = np.full(len(names), np.nan)
     for s, (e, _) in errors.items():

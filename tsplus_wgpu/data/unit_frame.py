@@ -4,7 +4,7 @@ pycolmap's triangulation, its pose refinement and their solvers' stopping rules 
 numbers they are given: the same photos with a world scaled by 1000 and shifted far from the
 origin gave lund 12,473 triangulated points instead of 12,450 (1,683 of them elsewhere by more
 than 1e-12 of the scene) and 20.jpg another repaired pose, and so another trained mesh
-(docs/measurements.md, "The triangulation in a frame of its own"). So the posed photos are
+(docs/measurements.md, "The triangulation in a frame of its own (2026-12-04)"). So the posed photos are
 handed to it in a frame of their own: the cameras' mean centre at the origin, their median
 distance from it 1 (:func:`camera_frame`); its points and poses are mapped back to the world.
 A similarity of the world moves that frame with it, so the same photos give the same points in
@@ -17,14 +17,15 @@ import numpy as np
 
 
 def camera_frame(cameras):
-    """``(centre [3], scale)``: the mean of the cameras' centres and their median distance from
-    it (1 when they all stand at one point, or the distance is not finite)."""
+    """``(centre [3], scale)``: the mean of the cameras' centres (the trainer's frame centres them
+    so too, :mod:`.frame`) and their median distance from it; the scale is 1 when they all stand
+    at one point, and the frame the world's when the centres are not finite."""
     centres = np.array([np.asarray(c.center, np.float64) for c in cameras]).reshape(-1, 3)
-    centre = centres.mean(axis=0) if len(centres) else np.zeros(3)
-    scale = float(np.median(np.linalg.norm(centres - centre, axis=1))) if len(centres) else 1.0
-    if not np.isfinite(scale) or scale <= 0.0 or not np.all(np.isfinite(centre)):
+    if not len(centres) or not np.all(np.isfinite(centres)):
         return np.zeros(3), 1.0
-    return centre, scale
+    centre = centres.mean(axis=0)
+    scale = float(np.median(np.linalg.norm(centres - centre, axis=1)))
+    return centre, (scale if np.isfinite(scale) and scale > 0.0 else 1.0)
 
 
 def in_frame(camera, frame):
