@@ -121,3 +121,37 @@ def test_non_finite_rejected():
         init_from_points(np.zeros((4, 2)))
     with pytest.raises(ValueError, match="rows"):
         init_from_points(pts, np.zeros((9, 3)))
+
+
+def test_the_same_mesh_in_any_world_units():
+    """Points in a world scaled by 1000 and shifted far from the origin give the same faces, the
+    same counts and the mapped positions. Two points 1e-15 apart (a triangulation's near-copies:
+    lund has 8 such pairs) are distinct numbers here but the same number in the moved world;
+    merged by distance, they are one point in both (with exact equality: 61 against 60 points)."""
+    rng = np.random.default_rng(5)
+    pts = rng.random((60, 3))
+    pts = np.concatenate([pts, pts[:1] + [1e-15, 0.0, 0.0]])
+    s, shift = 1000.0, np.array([3.1e4, -2.7e4, 5.5e4])
+    moved = pts * s + shift
+    assert np.unique(pts, axis=0).shape[0] == 61 and np.unique(moved, axis=0).shape[0] == 60   # the premise
+    cams = np.array([[2.0, 0.5, 0.5], [-1.0, 0.5, 0.5]])
+    rays = (np.arange(len(pts)) % 60, cams[np.arange(len(pts)) % 2])
+    a, ia = init_from_points(pts, return_info=True, max_edge_ratio=3.0, visibility=rays)
+    b, ib = init_from_points(moved, return_info=True, max_edge_ratio=3.0, visibility=(rays[0], rays[1] * s + shift))
+    assert ia == ib and ia.num_unique == 60 and ia.num_carved_faces > 0
+    np.testing.assert_array_equal(a.triangles, b.triangles)
+    np.testing.assert_allclose((b.positions - shift) / s, a.positions, rtol=0, atol=1e-12)
+
+
+def test_qhull_sees_the_points_in_their_own_frame():
+    """Near-degenerate clouds (a plane, points a hair off a lattice: co-spherical sets) and
+    their copy in a world scaled by 1000 and shifted give the same faces: Qhull's round-off
+    follows the numbers it is given, and in the world's own numbers the cloud of seed 5 got
+    other faces."""
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        pts = rng.random((300, 3))
+        pts[:50, 2] = 0.5
+        pts[50:100] = np.round(pts[50:100] * 4) / 4 + rng.random((50, 3)) * 1e-9
+        a, b = init_from_points(pts), init_from_points(pts * 1000.0 + 1e4)
+        np.testing.assert_array_equal(a.triangles, b.triangles, err_msg=f"seed {seed}")

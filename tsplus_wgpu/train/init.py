@@ -4,7 +4,8 @@ unique faces of all tetrahedra; colours become SH DC, opacity 0.28.
 Degenerate inputs (handled, never a hang or crash):
 
 * non-finite points or colours: ``ValueError`` naming the count.
-* exact duplicate points: merged before triangulating; their colours are averaged.
+* duplicate points (within ``MERGE_TOL`` of the points' extent, so the same in any world
+  units): merged before triangulating; their colours are averaged.
 * fewer than 3 distinct points, or all distinct points on one line: ``ValueError``
   (no triangle can be formed).
 * exactly 3 distinct non-collinear points: the single triangle.
@@ -71,6 +72,10 @@ class InitInfo:
     num_bounded: int = 0       # scene points left out before meshing (train.initial.bounded_points)
     num_path_faces: int = 0    # on the training cameras' path (train.initial, train.floaters)
     num_view_faces: int = 0    # added by ``view_faces`` (not faces of the tetrahedralisation)
+
+
+#: points closer than this share of their extent are one point (:func:`_unique_points`)
+MERGE_TOL = 1e-9
 
 
 def _check(name, arr, cols):
@@ -209,9 +214,43 @@ def _carve(uniq, faces, tri, inverse, visibility):
     return faces[~carved], int(np.count_nonzero(carved))
 
 
+def _merged(pts):
+    """``pts`` with every group of points within :data:`MERGE_TOL` x the extent of each other
+    (chained) given the coordinates of its first point."""
+    extent = float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0
+    if len(pts) < 2 or extent <= 0.0:
+        return pts
+    pairs = cKDTree(pts).query_pairs(MERGE_TOL * extent, output_type="ndarray")
+    if not len(pairs):
+        return pts
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    n = len(pts)
+    _, label = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)),
+                                    directed=False)
+    first = np.full(label.max() + 1, n)
+    np.minimum.at(first, label, np.arange(n))
+    return pts[first[label]]
+
+
+def _own_frame(points, origins=None):
+    """``(points, origins)`` centred on the points' mean and divided by their extent (the
+    largest side of their bounding box; 1 when they coincide); ``origins`` None stays None."""
+    if not len(points):
+        return points, origins
+    centre, extent = points.mean(axis=0), float(np.ptp(points, axis=0).max())
+    extent = extent if extent > 0.0 else 1.0
+    moved = None if origins is None else (np.asarray(origins, np.float64).reshape(-1, 3) - centre) / extent
+    return (points - centre) / extent, moved
+
+
 def _unique_points(pts, cols):
-    """``(unique points, inverse [P], their colours)``: exact copies (rows of the same
-    coordinates) merged, their colours averaged."""
+    """``(unique points, inverse [P], their colours)``: copies merged (points within
+    :data:`MERGE_TOL` of the points' extent of each other: each takes the coordinates of the
+    first of its group), their colours averaged. Exact equality would depend on the world's
+    numbers: lund's 12,450 triangulated points hold 8 pairs about 1e-12 of the scene apart that
+    became exact copies once the world was scaled by 1000 and shifted."""
+    pts = _merged(pts)
     uniq, inverse = np.unique(pts, axis=0, return_inverse=True)
     inverse = inverse.ravel()
     counts = np.bincount(inverse, minlength=len(uniq)).astype(np.float64)
@@ -260,8 +299,12 @@ def init_from_points(points, colors=None, sh_degree=3, opacity=INIT_OPACITY, fla
 
     uniq, inverse, ucol = _unique_points(pts, cols)
 
-    faces, method, tri = delaunay_faces(uniq, flat_tol, return_delaunay=True)
-    faces, num_carved = _carve(uniq, faces, tri, inverse, visibility)
+    # Qhull and the carving's walk see the points in their own frame (centred, of extent 1): in
+    # the world's numbers Qhull's round-off is another, and lund scaled by 1000 and shifted got 5
+    # more initial faces (docs/measurements.md, "The triangulation in a frame of its own (2026-12-04)")
+    own, origins_own = _own_frame(uniq, None if visibility is None else visibility[1])
+    faces, method, tri = delaunay_faces(own, flat_tol, return_delaunay=True)
+    faces, num_carved = _carve(own, faces, tri, inverse, None if visibility is None else (visibility[0], origins_own))
     faces, num_view = _with_view_faces(faces, extra_faces, inverse)
 
     # Drop zero-area faces.
