@@ -235,7 +235,9 @@ def _merged(pts):
 
 def _own_frame(points, origins=None):
     """``(points, origins)`` centred on the points' mean and divided by their extent (the
-    largest side of their bounding box; 1 when they coincide); ``origins`` None stays None."""
+    largest side of their bounding box; 1 when they coincide); ``origins`` None stays None. In
+    the world's numbers Qhull's round-off is another (docs/measurements.md, "The triangulation in
+    a frame of its own (2026-12-04)")."""
     if not len(points):
         return points, origins
     centre, extent = points.mean(axis=0), float(np.ptp(points, axis=0).max())
@@ -299,9 +301,7 @@ def init_from_points(points, colors=None, sh_degree=3, opacity=INIT_OPACITY, fla
 
     uniq, inverse, ucol = _unique_points(pts, cols)
 
-    # Qhull and the carving's walk see the points in their own frame (centred, of extent 1): in
-    # the world's numbers Qhull's round-off is another, and lund scaled by 1000 and shifted got 5
-    # more initial faces (docs/measurements.md, "The triangulation in a frame of its own (2026-12-04)")
+    # Qhull and the carving's walk in the points' own frame: any world units give one mesh (:func:`_own_frame`)
     own, origins_own = _own_frame(uniq, None if visibility is None else visibility[1])
     faces, method, tri = delaunay_faces(own, flat_tol, return_delaunay=True)
     faces, num_carved = _carve(own, faces, tri, inverse, None if visibility is None else (visibility[0], origins_own))
