@@ -8,7 +8,10 @@ than 1e-12 of the scene) and 20.jpg another repaired pose, and so another traine
 handed to it in a frame of their own: the cameras' mean centre at the origin, their median
 distance from it 1 (:func:`camera_frame`); its points and poses are mapped back to the world.
 A similarity of the world moves that frame with it, so the same photos give the same points in
-any units, to rounding.
+any units, to rounding. It is the trainer's :class:`~.frame.WorldFrame` map with another scale
+(the median distance, not the largest: one far camera does not shrink the rest) and a division
+where that class multiplies by the inverse; the triangulations measured in docs/measurements.md
+were made with these exact numbers, so it is kept as it is.
 """
 
 from __future__ import annotations
