@@ -168,3 +168,42 @@ def test_the_first_estimate_takes_the_steps_after_the_first_prune_at_the_time_mo
                      "4.0 it/s after it by the time model -> about 18 min (measured over steps 6-25)",
                      "estimate after the first prune: 2,530 iterations left at 2.0 it/s -> about 21 min "
                      "(measured over steps 451-470)"]
+
+
+def test_a_slower_machine_is_told_the_iterations_that_fit_the_planned_time(monkeypatch):
+    """A planned run (``planned``: the plan's 660 s and what fits them ``r`` times slower) on a
+    machine that takes 2x: after the estimate that follows the first prune, one line names the
+    iterations that would fit, with the slowdown measured over the whole run so far; none on a
+    machine as fast as the plan, none without a plan, and without topology after the only estimate."""
+    import time as clock
+    from types import SimpleNamespace
+
+    from tsplus_wgpu.train.callbacks import RateEstimate
+    from tsplus_wgpu.train.schedules import Schedule
+    now = [0.0]
+    monkeypatch.setattr(clock, "perf_counter", lambda: now[0])
+    asked = []
+
+    def fits(slower):
+        asked.append(round(slower, 3))
+        return 100 * int(3000 / slower / 100)
+
+    def run(step_s, topology=True, planned=(660.0, fits)):
+        sched = Schedule(total=3000, quick=True)        # first prune at 450
+        trainer = SimpleNamespace(config=SimpleNamespace(iterations=3000, topology=topology), sched=sched)
+        lines, now[0] = [], 0.0
+        cb = RateEstimate(report=lines.append, planned=planned)
+        for it in range(1, 600):
+            now[0] += step_s
+            cb.after_step(trainer, it, {})
+        return lines
+
+    slow = run(0.44)                    # 3000 x 0.44 s = 1,320 s: 2x the plan's 660
+    assert len(slow) == 3 and slow[2] == ("this machine: about 2.0x the 11 min the plan expected; --iterations 1,500 "
+                                          "would fit that time (a shorter run, not this one)")
+    assert len(asked) == 1 and abs(asked[0] - 2.0) < 0.01     # timed from the end of the first step
+    assert len(run(0.22)) == 2          # as the plan expected: no hint
+    assert len(run(0.3)) == 2           # 1.36x: under SLOWER
+    assert len(run(0.44, planned=None)) == 2
+    alone = run(0.44, topology=False)   # the only estimate, then the hint
+    assert len(alone) == 2 and alone[1].startswith("this machine: about 2.0x")

@@ -31,6 +31,7 @@ from ..train.config import TrainConfig, check_settings, cli_options, load_config
 # re-exported (the tests and older callers import them from here)
 from .plan import (CPU_MAX_PIXELS, GPU_MAX_SIDE, Plan, cpu_downscale, cpu_iterations, cpu_late_ratio, plan_lines,  # noqa: F401
                    plan_run)
+from .plan import CPU_TRAIN_SECONDS, cpu_seconds
 
 #: flag value -> config value, for the fields whose flag does not take the value itself (besides the
 #: switches: a flag whose choices are on and off gives a bool)
@@ -375,11 +376,15 @@ def run(args):
     from .view import attach_live_viewer
     viewer = attach_live_viewer(trainer, args)   # --view: the live window, drawn between steps
     psnr0 = trainer.evaluate()[0] if trainer.iteration == 0 else None
-    later = (cpu_late_ratio(cfg, [scene.cameras[i] for i in scene.train_indices], trainer.m)   # the time model's
-             if ctx.is_cpu else None)                                                          # shape, on a CPU
+    cams = [scene.cameras[i] for i in scene.train_indices]
+    later = cpu_late_ratio(cfg, cams, trainer.m) if ctx.is_cpu else None     # the time model's shape, on a CPU
+    planned = None
+    if plan.iterations_from == "CPU adapter" and trainer.iteration == 0:     # the iterations that fit a slower machine
+        planned = (cpu_seconds(cfg, cams, trainer.m),
+                   lambda slower: cpu_iterations(TrainConfig(**settings), scene, CPU_TRAIN_SECONDS / slower))
     try:
-        trainer.train(out_dir=out, progress=not args.no_progress, checkpoint_at_end=False,
-                      callbacks=[RateEstimate(report=tqdm.write, later_cost=later)])   # beside the progress bar
+        trainer.train(out_dir=out, progress=not args.no_progress, checkpoint_at_end=False,   # beside the progress bar
+                      callbacks=[RateEstimate(report=tqdm.write, later_cost=later, planned=planned)])
     except Interrupted as exc:
         import signal
         signum = exc.signum or signal.SIGINT

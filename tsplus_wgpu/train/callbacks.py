@@ -18,6 +18,10 @@ from __future__ import annotations
 
 import time
 
+#: :class:`RateEstimate` says how to shorten a planned run when the machine takes this many times
+#: the time the plan's model expected (the plan's reference machine: docs/measurements.md)
+SLOWER = 1.5
+
 
 class TrainCallback:
     """No-op base: override what you need."""
@@ -58,11 +62,20 @@ class RateEstimate(TrainCallback):
     before it, by a time model (``tsplus train`` on a CPU adapter:
     :func:`~tsplus_wgpu.cli.plan.cpu_late_ratio`). With it the first estimate, made before the
     first prune, takes the iterations after the prune at the measured rate / ``later_cost``
-    instead of at the slow rate of the initial mesh."""
+    instead of at the slow rate of the initial mesh.
 
-    def __init__(self, report=print, warmup=5, steps=20, later_cost=None):
+    ``planned`` (optional): ``(seconds, iterations_for)``, the training seconds a planned run
+    (``tsplus train`` on a CPU adapter choosing the iterations) was given by the plan's time model
+    and a function from a slowdown ``r`` to the iterations that fit those seconds on a machine
+    ``r`` times slower. Where the last estimate (the one after the first prune, or the only one)
+    puts the whole run at :data:`SLOWER` x those seconds or more, one more line names the
+    iterations that would: the plan itself never reads a clock (the same command trains the same
+    model anywhere), so shortening the run is the user's call."""
+
+    def __init__(self, report=print, warmup=5, steps=20, later_cost=None, planned=None):
         self.report, self.warmup, self.steps = report, max(1, int(warmup)), max(1, int(steps))
-        self.later_cost = later_cost
+        self.later_cost, self.planned = later_cost, planned
+        self.began = None              # the clock after the first step
         self.first = self.start = None
         self.pruned_at = None          # (iteration, clock, its step's seconds) of the first prune
         self.last = None               # the clock at the last step
@@ -85,12 +98,24 @@ class RateEstimate(TrainCallback):
                 edits = f" and {prunes:,} more prunes at about {duration_text(edit_s)} each (the first one's)"
             self.report(f"{what}: {left:,} iterations left at {rate:.1f} it/s{edits} -> about "
                         f"{duration_text(seconds)} (measured over steps {it - self.steps + 1}-{it})")
-            return
+            return seconds
         later = rate / self.later_cost
         seconds = (prune - 1 - it) / rate + (total - prune + 1) / later
         self.report(f"{what}: {left:,} iterations left, at {rate:.1f} it/s until the first prune (iteration "
                     f"{prune:,}) and about {later:.1f} it/s after it by the time model -> about "
                     f"{duration_text(seconds)} (measured over steps {it - self.steps + 1}-{it})")
+        return seconds
+
+    def _hint(self, trainer, left_seconds):
+        """The line of ``planned`` (see the class), when this machine is :data:`SLOWER` or more."""
+        if self.planned is None:
+            return
+        planned, iterations_for = self.planned
+        ratio = (time.perf_counter() - self.began + left_seconds) / max(float(planned), 1e-9)
+        fewer = iterations_for(ratio) if ratio >= SLOWER else None
+        if fewer is not None and fewer < int(trainer.config.iterations):
+            self.report(f"this machine: about {ratio:.1f}x the {duration_text(planned)} the plan expected; "
+                        f"--iterations {fewer:,} would fit that time (a shorter run, not this one)")
 
     @staticmethod
     def _first_prune_ahead(trainer, it):
@@ -105,12 +130,16 @@ class RateEstimate(TrainCallback):
     def after_step(self, trainer, it, info):
         if self.first is None:
             self.first = it
-            self.last = time.perf_counter()
+            self.last = self.began = time.perf_counter()
         done = it - self.first + 1
         if done == self.warmup:
             self.start = time.perf_counter()
         elif done == self.warmup + self.steps:
-            self._say(trainer, it, self.start, "estimate")
+            left = self._say(trainer, it, self.start, "estimate")
+            sched = getattr(trainer, "sched", None)
+            if sched is None or not trainer.config.topology or not any(
+                    sched.is_prune_step(i) for i in range(it + 1, int(trainer.config.iterations) + 1)):
+                self._hint(trainer, left)              # no estimate after a prune to come
         sched = getattr(trainer, "sched", None)
         if self.done_after_prune or sched is None or not trainer.config.topology:
             return
@@ -119,8 +148,9 @@ class RateEstimate(TrainCallback):
         if self.pruned_at is None and done > self.warmup + self.steps and sched.is_prune_step(it):
             self.pruned_at = (it, now, now - last)       # the prune's step, its edit included
         elif self.pruned_at is not None and it - self.pruned_at[0] == self.steps:
-            self._say(trainer, it, self.pruned_at[1], "estimate after the first prune", edit_s=self.pruned_at[2])
+            left = self._say(trainer, it, self.pruned_at[1], "estimate after the first prune", edit_s=self.pruned_at[2])
             self.done_after_prune = True
+            self._hint(trainer, left)
 
 
 __all__ = ["TrainCallback", "RateEstimate", "duration_text"]
