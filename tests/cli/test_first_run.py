@@ -164,6 +164,11 @@ def test_the_cpu_default_takes_the_most_iterations_that_fit_its_time():
     # more points (a larger initial mesh) or more pixels: fewer iterations; a tiny scene: the quick preset's own
     assert chosen[(135, 240), 17_000] < chosen[(200, 150), 9000] < 3000 == chosen[(64, 48), 100]
     assert cpu_iterations(cfg, _scene(1000, 1000, views=50, points=100_000)) == 600          # never fewer
+    # none_fit (the slow machine's hint: None, no advice) only where not even 600 fit
+    assert cpu_iterations(cfg, _scene(1000, 1000, views=50, points=100_000), none_fit=None) is None
+    small = _scene(200, 150, views=50, points=9000)
+    assert cpu_iterations(cfg, small, seconds=seconds(600, small), none_fit=None) == 600
+    assert cpu_iterations(cfg, small, seconds=seconds(600, small) * 0.99, none_fit=None) is None
     assert cpu_iterations(cfg, _scene(200, 150, views=50, points=9000), seconds=10 ** 6) == 3000
     # only the points the run meshes count: at most init_points_share (0.5) x the vertex cap (60,000) = 30,000
     most = initial_points_bound(cfg, _scene(200, 150, views=50).cameras)
@@ -171,6 +176,23 @@ def test_the_cpu_default_takes_the_most_iterations_that_fit_its_time():
     assert cpu_iterations(cfg, _scene(200, 150, views=50, points=150_000)) == \
         cpu_iterations(cfg, _scene(200, 150, views=50, points=most)) > \
         cpu_iterations(dataclasses.replace(cfg, init_points_share=0.0), _scene(200, 150, views=50, points=150_000))
+
+
+def test_the_slower_machines_line_counts_the_iterations_as_iterations_n_trains():
+    """RateEstimate's ``planned`` for a CPU plan's run: the time model's seconds of the run as
+    planned (half the cap in points), and the iterations that fit the plan's time r times slower
+    as ``--iterations N`` trains them, meshing every point: fewer than the plan's share would give
+    where the scene has more points than that share; None where not even 600 fit."""
+    cfg = dataclasses.replace(TrainConfig.preset(quick=True), init_points_share=planning.CPU_INIT_POINTS_SHARE,
+                              iterations=2000)
+    scene = _scene(200, 150, views=50, points=40_000)          # over the share's 30,000
+    seconds, fewer = planning.slower_machine(cfg, scene, 345_000)
+    assert seconds == planning.cpu_seconds(cfg, scene.cameras, 345_000)
+    every = dataclasses.replace(cfg, init_points_share=0.0)
+    assert fewer(1.5) == cpu_iterations(every, scene, planning.CPU_TRAIN_SECONDS / 1.5) \
+        < cpu_iterations(cfg, scene, planning.CPU_TRAIN_SECONDS / 1.5)
+    assert fewer(1.0) == cpu_iterations(every, scene)
+    assert fewer(100.0) is None
 
 
 def _cli(*args, cwd):

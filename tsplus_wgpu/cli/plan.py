@@ -122,23 +122,37 @@ def _iteration_seconds(cfg, cameras, triangles):
                                      + CPU_SECONDS_PER_TRIANGLE * vertex_cap(cfg, cameras).vertices)
 
 
-def cpu_iterations(cfg, scene, seconds=CPU_TRAIN_SECONDS):
+def cpu_iterations(cfg, scene, seconds=CPU_TRAIN_SECONDS, none_fit=CPU_MIN_ITERATIONS):
     """The iterations of a CPU adapter's default run of ``cfg`` (a
     :class:`~tsplus_wgpu.train.config.TrainConfig`, whose own ``iterations`` are ignored) on
     ``scene`` (at the training size): the most, in steps of :data:`CPU_ITERATION_STEP` between
     :data:`CPU_MIN_ITERATIONS` and :data:`CPU_MAX_ITERATIONS`, whose :func:`cpu_seconds` (initial
     mesh: :data:`TRIANGLES_PER_POINT` per point it meshes, within
-    :func:`~tsplus_wgpu.train.strategy.cap.initial_points_bound`) fit ``seconds``."""
+    :func:`~tsplus_wgpu.train.strategy.cap.initial_points_bound`) fit ``seconds``; ``none_fit``
+    where not even the fewest do."""
     from dataclasses import replace
     from ..train.strategy.cap import initial_points_bound
     cams = [scene.cameras[i] for i in scene.train_indices]
     points = 0 if scene.points is None else len(scene.points)
     most = initial_points_bound(cfg, cams)
     triangles = TRIANGLES_PER_POINT * (points if most is None else min(points, most))
-    for n in range(CPU_MAX_ITERATIONS, CPU_MIN_ITERATIONS, -CPU_ITERATION_STEP):
+    for n in range(CPU_MAX_ITERATIONS, CPU_MIN_ITERATIONS - 1, -CPU_ITERATION_STEP):
         if cpu_seconds(replace(cfg, iterations=n), cams, triangles) <= seconds:
             return n
-    return CPU_MIN_ITERATIONS
+    return none_fit
+
+
+def slower_machine(cfg, scene, triangles):
+    """:class:`~tsplus_wgpu.train.callbacks.RateEstimate`'s ``planned`` for a run whose
+    iterations the CPU plan chose (``cfg``, the initial mesh's ``triangles``): the time model's
+    training seconds, and a function from a slowdown ``r`` to the iterations that ``--iterations
+    N`` (which meshes every point) fits in :data:`CPU_TRAIN_SECONDS` on a machine ``r`` times
+    slower than the reference, or None where not even the fewest fit."""
+    from dataclasses import replace
+    cams = [scene.cameras[i] for i in scene.train_indices]
+    given = replace(cfg, init_points_share=0.0)
+    return (cpu_seconds(cfg, cams, triangles),
+            lambda slower: cpu_iterations(given, scene, CPU_TRAIN_SECONDS / slower, none_fit=None))
 
 
 @dataclass(frozen=True)

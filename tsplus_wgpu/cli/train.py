@@ -31,7 +31,7 @@ from ..train.config import TrainConfig, check_settings, cli_options, load_config
 # re-exported (the tests and older callers import them from here)
 from .plan import (CPU_MAX_PIXELS, GPU_MAX_SIDE, Plan, cpu_downscale, cpu_iterations, cpu_late_ratio, plan_lines,  # noqa: F401
                    plan_run)
-from .plan import CPU_TRAIN_SECONDS, cpu_seconds
+from .plan import slower_machine
 
 #: flag value -> config value, for the fields whose flag does not take the value itself (besides the
 #: switches: a flag whose choices are on and off gives a bool)
@@ -378,10 +378,8 @@ def run(args):
     psnr0 = trainer.evaluate()[0] if trainer.iteration == 0 else None
     cams = [scene.cameras[i] for i in scene.train_indices]
     later = cpu_late_ratio(cfg, cams, trainer.m) if ctx.is_cpu else None     # the time model's shape, on a CPU
-    planned = None
-    if plan.iterations_from == "CPU adapter" and trainer.iteration == 0:     # the iterations that fit a slower machine
-        planned = (cpu_seconds(cfg, cams, trainer.m),
-                   lambda slower: cpu_iterations(TrainConfig(**settings), scene, CPU_TRAIN_SECONDS / slower))
+    planned = (slower_machine(cfg, scene, trainer.m)        # what fits the plan's time on a slower machine
+               if plan.iterations_from == "CPU adapter" and trainer.iteration == 0 else None)
     try:
         trainer.train(out_dir=out, progress=not args.no_progress, checkpoint_at_end=False,   # beside the progress bar
                       callbacks=[RateEstimate(report=tqdm.write, later_cost=later, planned=planned)])
