@@ -128,6 +128,7 @@ class RateEstimate(TrainCallback):
         return first if first is not None and first > it else None
 
     def after_step(self, trainer, it, info):
+        sched = getattr(trainer, "sched", None)
         if self.first is None:
             self.first = it
             self.last = self.began = time.perf_counter()
@@ -136,11 +137,9 @@ class RateEstimate(TrainCallback):
             self.start = time.perf_counter()
         elif done == self.warmup + self.steps:
             left = self._say(trainer, it, self.start, "estimate")
-            sched = getattr(trainer, "sched", None)
             if sched is None or not trainer.config.topology or not any(
                     sched.is_prune_step(i) for i in range(it + 1, int(trainer.config.iterations) + 1)):
                 self._hint(trainer, left)              # no estimate after a prune to come
-        sched = getattr(trainer, "sched", None)
         if self.done_after_prune or sched is None or not trainer.config.topology:
             return
         now, last = time.perf_counter(), self.last
