@@ -9,6 +9,7 @@ Marked ``slow`` so it can be deselected with ``-m "not slow"``; it runs by defau
 import numpy as np
 import pytest
 
+import tsplus_wgpu.data.photos as photos_mod
 from tsplus_wgpu.data import SceneError, load_scene
 from tsplus_wgpu.data.cache import describe
 from tsplus_wgpu.data.images import resize_area, write_image
@@ -44,6 +45,9 @@ def test_photos_only_sfm_recovers_cup_poses(tmp_path, cup_near):
     assert sorted(p.name for p in entry.iterdir()) == ["done.json", "sparse"]
     assert [p.name for p in (entry / "sparse").iterdir()] == ["0"]
     assert describe(entry).source == str(photos) and describe(entry).finished and not describe(entry).spare
+    here = load_scene(photos, split="none", cache_dir=tmp_path / "cache")     # this process made it: no "reused"
+    assert not any("reused cached SfM model" in w for w in here.warnings)
+    photos_mod.MADE_HERE.clear()                                           # as a later process
     again = load_scene(photos, split="none", cache_dir=tmp_path / "cache")
     assert any("reused cached SfM model" in w for w in again.warnings)
     assert np.array_equal(again.points, sc.points)
@@ -71,11 +75,13 @@ def test_photos_sfm_names_the_photos_it_skips_on_every_load(tmp_path, cup_near, 
     said = [w for w in first.warnings if "SfM registered" in w]
     assert said == [w for w in said if "6 of 7 photos" in w and "zz_flat.png" in w] and len(said) == 1
     assert "zz_flat.png" not in first.image_names
+    photos_mod.MADE_HERE.clear()                                    # as a later process
     again = load_scene(photos, split="none", cache_dir=tmp_path / "cache")
     assert said[0] in again.warnings and any("reused cached SfM model" in w for w in again.warnings)
     monkeypatch.setenv("TSPLUS_CACHE", str(tmp_path / "cache2"))     # tsplus train: the plan, then the load
     assert frame_sizes(photos) == [(400, 300)] * 6
-    assert said[0] in load_scene(photos, split="none").warnings
+    trained = load_scene(photos, split="none").warnings               # the SfM ran in this process: not "reused"
+    assert said[0] in trained and not any("reused cached SfM model" in w for w in trained)
     entry, = (tmp_path / "cache").glob("sfm_*")
     done = entry / "done.json"
     rec = json.loads(done.read_text())

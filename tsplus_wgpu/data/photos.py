@@ -31,6 +31,9 @@ ORDERED_MIN_SHARE = 0.9
 #: frames, 960x540: extraction 59 s for 64 images, 62-170 ms a matched pair, mapping 22 s): the
 #: units of its progress bar, so that its time left means something from the first stage on
 STEP_SECONDS = dict(image=0.9, pair=0.1, register=0.35)
+#: the SfM cache entries this process made: a later load in the same process (``tsplus train``'s
+#: plan runs the SfM, its load reads it) says nothing of reusing them
+MADE_HERE: set = set()
 
 
 def natural_key(name: str) -> list:
@@ -92,7 +95,8 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
     model_dir = work / "sparse" / "0"
     if (model_dir / "cameras.bin").is_file() and (work / "done.json").is_file():
         warnings.extend(_recorded_warnings(work / "done.json"))   # what the SfM said: every load says it again
-        warnings.append(f"reused cached SfM model {model_dir}")
+        if str(work) not in MADE_HERE:
+            warnings.append(f"reused cached SfM model {model_dir}")
         mark_used(work)
         return model_dir
     if work.exists():
@@ -110,6 +114,7 @@ def run_photos_sfm(photo_dir: Path, names: list, cache=None, progress: bool = Tr
         raise
     (work / "done.json").write_text(json.dumps({"images": list(names), "registered": nreg, "folder": str(label),
                                                 "warnings": warnings[said:]}))
+    MADE_HERE.add(str(work))
     trim(work, "sfm")           # the feature database and the other models: not read again
     return model_dir
 
